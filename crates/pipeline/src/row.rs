@@ -1,0 +1,53 @@
+//! One result row per (experiment, scene, stage chain + parameters, ray set).
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Flat, serializable result of one chain. The report turns rows into a polars DataFrame column by
+/// column through serde_json, so later issues add fields here (Option, so old rows still read) and
+/// the report picks them up. Times are medians over `repeat` runs.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ResultRow {
+    pub experiment: String,
+    /// Scene spec as given (`gen:sphere:n=1000` or a path).
+    pub scene: String,
+    /// Short scene name for plots (file stem or generator name with parameters).
+    pub scene_name: String,
+    pub triangles: u64,
+    pub dropped_triangles: u64,
+    /// Builder name (`binned-sah`, ...).
+    pub builder: String,
+    /// Canonical builder parameters, `k=v` joined by `,` in key order (e.g. `bins=16,leaf=2`).
+    pub build_params: String,
+    /// Compaction applied after the build (`none` or `collapse`).
+    pub compact: String,
+    /// Display label of the whole chain, e.g. `binned-sah bins=16 +collapse`.
+    pub method: String,
+    pub c_t: f64,
+    pub c_i: f64,
+    pub sah_cost: f64,
+    pub inner_sa_ratio: f64,
+    pub leaf_sa_ratio: f64,
+    pub refs_per_leaf: f64,
+    pub inner_nodes: u64,
+    pub leaves: u64,
+    pub depth: u32,
+    pub bytes: u64,
+    pub bytes_per_triangle: f64,
+    pub valid: bool,
+    pub bvh_hash: String,
+    pub build_seconds: f64,
+    /// Median seconds of the compaction stage (0 when none).
+    pub compact_seconds: f64,
+    /// Ray set (`primary:800x800`, `shadow:800x800`, `random:100000`), absent without a measure stage.
+    pub rays_kind: Option<String>,
+    pub rays: Option<u64>,
+    pub hits: Option<u64>,
+    pub traversal_steps_per_ray: Option<f64>,
+    pub intersections_per_ray: Option<f64>,
+    pub trace_seconds: Option<f64>,
+    pub mrays_per_s: Option<f64>,
+    /// Path of the primary-ray heat map PNG in the cache, when the ray set is primary.
+    pub heatmap: Option<String>,
+    /// Stage keys (hex) of this chain, stage name -> key, for provenance.
+    pub keys: BTreeMap<String, String>,
+}

@@ -1,0 +1,9 @@
+//! Rays and traversal: ray sets (thesis 4.4), closest-hit traversal with per-ray counters,
+//! the brute-force oracle every builder is checked against, and traversal-step heat maps.
+
+pub mod heatmap;
+pub mod rays;
+pub mod traverse;
+
+pub use rays::{primary_rays, random_rays, shadow_rays, Camera, Ray};
+pub use traverse::{brute_force, trace, Hit, TraceStats};
