@@ -7,49 +7,38 @@
 //! reports the first problem as `file:line: reason`. Only input that passed the scan reaches tobj.
 use crate::{LoadError, Scene, Triangle};
 use glam::Vec3;
-use std::io::Read;
+use std::io::{BufRead, Read};
+use std::sync::mpsc::{Receiver, SyncSender};
 use std::path::Path;
 
 /// Load an `.obj` or gzip-compressed `.obj.gz` file (detected by the gzip magic bytes, so a
 /// misnamed file still loads). Non-finite triangles are dropped and counted; zero-area ones kept.
 pub fn load_obj(path: &Path) -> Result<Scene, LoadError> {
     let err = |line: Option<usize>, reason: String| LoadError { file: path.to_path_buf(), line, reason };
-    let raw = std::fs::read(path).map_err(|e| err(None, format!("cannot read file: {e}")))?;
-    let bytes = if raw.starts_with(&[0x1f, 0x8b]) {
-        let mut out = Vec::with_capacity(raw.len() * 4);
-        flate2::read::MultiGzDecoder::new(&raw[..])
-            .read_to_end(&mut out)
-            .map_err(|e| err(None, format!("bad gzip data: {e}")))?;
-        out
+    let file = std::fs::File::open(path).map_err(|e| err(None, format!("cannot open file: {e}")))?;
+    let mut file = std::io::BufReader::with_capacity(1 << 16, file);
+    let head = file.fill_buf().map_err(|e| err(None, format!("cannot read file: {e}")))?;
+    let result = if head.starts_with(&[0x1f, 0x8b]) {
+        parse_obj_reader(flate2::bufread::MultiGzDecoder::new(file))
     } else if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("gz")) {
         return Err(err(None, "not a gzip file (missing gzip header) despite the .gz extension".into()));
     } else {
-        raw
+        parse_obj_reader(file)
     };
-    parse_obj_bytes(&bytes).map_err(|(line, reason)| err(line, reason))
+    result.map_err(|(line, reason)| err(line, reason))
 }
 
 /// Parse OBJ text held in memory. Errors are (1-based line, reason).
 pub fn parse_obj_bytes(bytes: &[u8]) -> Result<Scene, (Option<usize>, String)> {
-    let text = match std::str::from_utf8(bytes) {
-        Ok(t) => t,
-        Err(e) => {
-            let line = 1 + bytes[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count();
-            return Err((Some(line), "invalid UTF-8 (binary data?)".into()));
-        }
-    };
-    let scan = scan(text).map_err(|(l, r)| (Some(l), r))?;
-    if scan.faces == 0 {
-        return Err((None, format!("no triangles (no face statements; {} vertices)", scan.vertices)));
-    }
-    let filtered;
-    let src: &str = if scan.needs_filter {
-        filtered = filter(text);
-        &filtered
-    } else {
-        text
-    };
+    parse_obj_reader(bytes)
+}
 
+/// Parse OBJ text from a reader. Errors are (1-based line, reason).
+///
+/// Two threads: one reads (and gunzips) and validates blocks of whole lines, and hands each
+/// block on only once it passed validation; tobj parses the validated blocks as they arrive.
+/// So tobj never sees input the scan rejected, and reading + validation overlap with parsing.
+pub fn parse_obj_reader<R: Read + Send>(reader: R) -> Result<Scene, (Option<usize>, String)> {
     let opts = tobj::LoadOptions {
         triangulate: true,
         single_index: false,
@@ -58,8 +47,30 @@ pub fn parse_obj_bytes(bytes: &[u8]) -> Result<Scene, (Option<usize>, String)> {
         ..Default::default()
     };
     // Materials are irrelevant to positions-only loading: never open .mtl files.
-    let (models, _) = tobj::load_obj_buf(&mut src.as_bytes(), &opts, |_| Ok(Default::default()))
-        .map_err(|e| (None, format!("OBJ parse error: {e}")))?;
+    let run_tobj = |mut r: &mut dyn BufRead| {
+        tobj::load_obj_buf(&mut r, &opts, |_| Ok(Default::default())).map_err(|e| (None, format!("OBJ parse error: {e}")))
+    };
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<u8>>(8);
+    let (produced, streamed) = std::thread::scope(|s| {
+        let producer = s.spawn(move || produce(reader, tx));
+        let mut chan = ChannelReader { rx, buf: Vec::new(), pos: 0 };
+        let streamed = run_tobj(&mut chan);
+        // Drop the receiver before joining so a producer blocked on a full channel wakes up.
+        drop(chan);
+        let produced = producer.join().unwrap_or_else(|_| Err((None, "internal: reader thread panicked".into())));
+        (produced, streamed)
+    });
+    let (text, scan) = produced?;
+    if scan.faces == 0 {
+        return Err((None, format!("no triangles (no face statements; {} vertices)", scan.vertices)));
+    }
+    let models = if scan.needs_filter {
+        // Rare: the stream to tobj was cut at the first line needing a rewrite; redo on the whole text.
+        let text = std::str::from_utf8(&text).map_err(|_| (None, "internal: text not UTF-8".to_string()))?;
+        run_tobj(&mut filter(text).as_bytes())?.0
+    } else {
+        streamed?.0
+    };
 
     let n: usize = models.iter().map(|m| m.mesh.indices.len() / 3).sum();
     let mut tris = Vec::with_capacity(n);
@@ -86,6 +97,101 @@ pub fn parse_obj_bytes(bytes: &[u8]) -> Result<Scene, (Option<usize>, String)> {
     Ok(scene)
 }
 
+type LineErr = (Option<usize>, String);
+
+/// Read everything, validate block by block (whole lines only), forward validated blocks to tobj.
+/// Returns the whole text (for the rare rewrite path and for error location) and the scan result.
+fn produce<R: Read>(mut reader: R, tx: SyncSender<Vec<u8>>) -> Result<(Vec<u8>, ScanResult), LineErr> {
+    const BLOCK: usize = 1 << 20;
+    let mut tx = Some(tx);
+    let mut text: Vec<u8> = Vec::new();
+    let mut scanner = Scanner::default();
+    let mut done = 0usize; // bytes of `text` already validated and forwarded
+    let mut eof = false;
+    while !eof {
+        let start = text.len();
+        text.resize(start + BLOCK, 0);
+        let mut filled = start;
+        while filled < text.len() {
+            match reader.read(&mut text[filled..]) {
+                Ok(0) => {
+                    eof = true;
+                    break;
+                }
+                Ok(k) => filled += k,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err((None, format!("read error (truncated or corrupt gzip?): {e}"))),
+            }
+        }
+        text.truncate(filled);
+        // Validate up to the last complete line (everything at end of input).
+        let end = if eof {
+            text.len()
+        } else {
+            match text[done..].iter().rposition(|&b| b == b'\n') {
+                Some(i) => done + i + 1,
+                None => continue,
+            }
+        };
+        let block = &text[done..end];
+        let chunk = match std::str::from_utf8(block) {
+            Ok(t) => t,
+            Err(e) => {
+                let line = scanner.line + 1 + block[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count();
+                return Err((Some(line), "invalid UTF-8 (binary data?)".into()));
+            }
+        };
+        scanner.feed(chunk).map_err(|(l, r)| (Some(l), r))?;
+        if scanner.needs_filter {
+            tx = None; // tobj must not see the line needing a rewrite; re-run later on filtered text
+        }
+        if let Some(t) = &tx {
+            if t.send(block.to_vec()).is_err() {
+                tx = None; // tobj stopped early (its own error); the scan still decides
+            }
+        }
+        done = end;
+    }
+    let text_str = std::str::from_utf8(&text).unwrap_or("");
+    let scan = scanner.finish(text_str).map_err(|(l, r)| (Some(l), r))?;
+    Ok((text, scan))
+}
+
+/// `BufRead` over the blocks arriving from the validating thread; the closed channel is EOF.
+struct ChannelReader {
+    rx: Receiver<Vec<u8>>,
+    buf: Vec<u8>,
+    pos: usize,
+}
+
+impl Read for ChannelReader {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        let avail = self.fill_buf()?;
+        let k = avail.len().min(out.len());
+        out[..k].copy_from_slice(&avail[..k]);
+        self.consume(k);
+        Ok(k)
+    }
+}
+
+impl BufRead for ChannelReader {
+    fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
+        while self.pos >= self.buf.len() {
+            match self.rx.recv() {
+                Ok(b) => {
+                    self.buf = b;
+                    self.pos = 0;
+                }
+                Err(_) => return Ok(&[]),
+            }
+        }
+        Ok(&self.buf[self.pos..])
+    }
+    fn consume(&mut self, amt: usize) {
+        self.pos = (self.pos + amt).min(self.buf.len());
+    }
+}
+
 struct ScanResult {
     vertices: usize,
     faces: usize,
@@ -97,51 +203,72 @@ fn parse_floats(words: &mut std::str::SplitWhitespace, n: usize) -> bool {
     (0..n).all(|_| words.next().is_some_and(|w| w.parse::<f32>().is_ok()))
 }
 
-/// Validate everything tobj acts on; the first problem is returned as (line, reason).
-fn scan(text: &str) -> Result<ScanResult, (usize, String)> {
-    let (mut nv, mut nvt, mut nvn, mut faces) = (0usize, 0usize, 0usize, 0usize);
-    let mut needs_filter = false;
-    // Absolute indices may point forward (tobj resolves them after reading the whole file):
-    // remember the first line reaching past what was defined so far, per kind.
-    let mut forward: [Option<(usize, usize)>; 3] = [None; 3]; // (line, largest index on it)
-    let mut max_ref = [0usize; 3];
-    for (i, raw) in text.split('\n').enumerate() {
-        let lineno = i + 1;
-        let line = raw.strip_suffix('\r').unwrap_or(raw);
+/// Absolute indices above this are rejected at once: no file is that large, and it keeps tobj's
+/// unchecked `index * 3 + 2` style arithmetic far from overflow.
+const MAX_INDEX: u64 = 1 << 40;
+
+/// Validates everything tobj acts on, block by block; the first problem is (line, reason).
+#[derive(Default)]
+struct Scanner {
+    /// Lines seen so far.
+    line: usize,
+    /// Elements defined so far: positions, texture coordinates, normals.
+    counts: [usize; 3],
+    faces: usize,
+    needs_filter: bool,
+    /// Largest absolute index referenced, per kind. Absolute indices may point forward (tobj
+    /// resolves them after reading the whole file), so they are checked in `finish`.
+    max_ref: [u64; 3],
+}
+
+const KIND: [&str; 3] = ["vertex", "texture coordinate", "normal"];
+
+impl Scanner {
+    /// `chunk` holds whole lines (only the last chunk of a file may lack the final newline).
+    fn feed(&mut self, chunk: &str) -> Result<(), (usize, String)> {
+        for raw in chunk.split_inclusive('\n') {
+            self.line += 1;
+            let line = raw.strip_suffix('\n').unwrap_or(raw);
+            let line = line.strip_suffix('\r').unwrap_or(line);
+            self.line_ok(line).map_err(|r| (self.line, r))?;
+        }
+        Ok(())
+    }
+
+    fn line_ok(&mut self, line: &str) -> Result<(), String> {
         let mut words = line.split_whitespace();
-        let bad = |r: String| Err((lineno, r));
         match words.next() {
             Some("v") => {
                 if !parse_floats(&mut words, 3) {
-                    return bad(format!("vertex needs three numeric coordinates: {:?}", clip(line)));
+                    return Err(format!("vertex needs three numeric coordinates: {:?}", clip(line)));
                 }
                 let extra: Vec<&str> = words.collect();
                 match extra.len() {
                     0 => {}
                     1 => match extra[0].parse::<f32>() {
-                        Ok(w) if w == 0.0 => return bad("vertex weight w is zero".into()),
+                        Ok(w) if w == 0.0 => return Err("vertex weight w is zero".into()),
                         Ok(_) => {}
-                        Err(_) => return bad(format!("vertex weight is not a number: {:?}", clip(extra[0]))),
+                        Err(_) => return Err(format!("vertex weight is not a number: {:?}", clip(extra[0]))),
                     },
-                    3 => needs_filter = true, // colours: stripped, tobj misaligns mixed colour/no-colour
-                    k => return bad(format!("vertex has {} values (expected 3, 4 or 6)", 3 + k)),
+                    // Colours: cut off before tobj, which misaligns files mixing coloured and plain vertices.
+                    3 => self.needs_filter = true,
+                    k => return Err(format!("vertex has {} values (expected 3, 4 or 6)", 3 + k)),
                 }
-                nv += 1;
+                self.counts[0] += 1;
             }
             Some("vt") => {
                 if !parse_floats(&mut words, 2) {
-                    return bad(format!("texture coordinate needs two numbers: {:?}", clip(line)));
+                    return Err(format!("texture coordinate needs two numbers: {:?}", clip(line)));
                 }
-                nvt += 1;
+                self.counts[1] += 1;
             }
             Some("vn") => {
                 if !parse_floats(&mut words, 3) {
-                    return bad(format!("normal needs three numbers: {:?}", clip(line)));
+                    return Err(format!("normal needs three numbers: {:?}", clip(line)));
                 }
-                nvn += 1;
+                self.counts[2] += 1;
             }
             Some("f") => {
-                let counts = [nv, nvt, nvn];
                 let mut k = 0usize;
                 for w in words {
                     k += 1;
@@ -149,60 +276,60 @@ fn scan(text: &str) -> Result<ScanResult, (usize, String)> {
                     for (kind, part) in parts.by_ref().take(3).enumerate() {
                         if part.is_empty() {
                             if kind == 0 {
-                                return bad(format!("face vertex {w:?} has no position index"));
+                                return Err(format!("face vertex {:?} has no position index", clip(w)));
                             }
                             continue;
                         }
-                        let what = ["vertex", "texture coordinate", "normal"][kind];
-                        let x: i64 = match part.parse() {
-                            Ok(x) => x,
-                            Err(_) => return bad(format!("face index {part:?} in {w:?} is not an integer")),
+                        let what = KIND[kind];
+                        let Ok(x) = part.parse::<i64>() else {
+                            return Err(format!("face index {:?} is not an integer", clip(part)));
                         };
-                        let have = counts[kind];
+                        let have = self.counts[kind];
                         if x == 0 {
-                            return bad(format!("face {what} index 0 (OBJ indices start at 1)"));
+                            return Err(format!("face {what} index 0 (OBJ indices start at 1)"));
                         } else if x < 0 {
                             if x.unsigned_abs() > have as u64 {
-                                return bad(format!(
+                                return Err(format!(
                                     "relative face {what} index {x} reaches before the first {what} \
                                      ({have} defined so far)"
                                 ));
                             }
+                        } else if x as u64 > MAX_INDEX {
+                            return Err(format!("face {what} index {x} is out of range"));
                         } else {
-                            let x = usize::try_from(x).unwrap_or(usize::MAX);
-                            if x > have && forward[kind].is_none() {
-                                forward[kind] = Some((lineno, x));
-                            }
-                            max_ref[kind] = max_ref[kind].max(x);
+                            self.max_ref[kind] = self.max_ref[kind].max(x as u64);
                         }
                     }
                     if parts.next().is_some() {
-                        return bad(format!("face vertex {w:?} has more than three '/'-separated indices"));
+                        return Err(format!("face vertex {:?} has more than three '/'-separated indices", clip(w)));
                     }
                 }
                 if k < 3 {
-                    return bad(format!("face with {k} vertices (a face needs at least 3)"));
+                    return Err(format!("face with {k} vertices (a face needs at least 3)"));
                 }
-                faces += 1;
+                self.faces += 1;
             }
-            Some("l") | Some("usemtl") => needs_filter = true,
+            // Polylines would be fanned into triangles by tobj, and `usemtl` without a name is a
+            // tobj error: neither matters for positions only, so both become comments.
+            Some("l") | Some("usemtl") => self.needs_filter = true,
             _ => {}
         }
+        Ok(())
     }
-    // Forward references: valid only if the file eventually defines enough elements.
-    let totals = [nv, nvt, nvn];
-    for kind in 0..3 {
-        if max_ref[kind] > totals[kind] {
-            let what = ["vertex", "texture coordinate", "normal"][kind];
-            // Find the first face line whose index exceeds the final total (rescan, error path only).
-            let line = first_line_over(text, kind, totals[kind]).or(forward[kind].map(|f| f.0)).unwrap_or(0);
-            return Err((
-                line,
-                format!("face {what} index out of range (the file defines {} {what}s)", totals[kind]),
-            ));
+
+    /// Check forward references against the final totals; `text` is the whole file (only
+    /// re-read on this error path, to find the offending line).
+    fn finish(&self, text: &str) -> Result<ScanResult, (usize, String)> {
+        for kind in 0..3 {
+            let total = self.counts[kind];
+            if self.max_ref[kind] > total as u64 {
+                let what = KIND[kind];
+                let line = first_line_over(text, kind, total).unwrap_or(self.line);
+                return Err((line, format!("face {what} index out of range (the file defines {total} {what}s)")));
+            }
         }
+        Ok(ScanResult { vertices: self.counts[0], faces: self.faces, needs_filter: self.needs_filter })
     }
-    Ok(ScanResult { vertices: nv, faces, needs_filter })
 }
 
 fn first_line_over(text: &str, kind: usize, total: usize) -> Option<usize> {
