@@ -1,9 +1,17 @@
 //! BVH builders. Each is a plain function over primitive boxes and centres (never triangles, files
 //! or caches), one method per module, named after the papers.
+//!
+//! The top-down builders share one iterative driver ([`topdown`]): a builder only supplies the split
+//! decision for a primitive range (leaf or two child ranges), the driver owns the node array and the
+//! explicit task stack. Tasks are independent sub-ranges, so a later parallel driver can hand them to
+//! threads (thesis 3.1.2, "vertical" scheme) without touching the split decisions.
 
 pub mod binned_sah;
+pub(crate) mod boxa;
+pub(crate) mod primref;
 pub mod spatial_median;
 pub mod sweep_sah;
+pub(crate) mod topdown;
 
 use bvhlab_bvh::CostParams;
 use serde::{Deserialize, Serialize};
@@ -21,5 +29,27 @@ pub struct TopDownConfig {
 impl Default for TopDownConfig {
     fn default() -> Self {
         Self { leaf: 2, cost: CostParams::default() }
+    }
+}
+
+impl TopDownConfig {
+    /// Effective primitive threshold; 0 is treated as 1 (a leaf always holds at least one primitive).
+    #[inline]
+    pub(crate) fn max_leaf(&self) -> usize {
+        self.leaf.max(1) as usize
+    }
+    /// `leaf <= 1` forces single-primitive leaves: no SAH leaf test, no early termination.
+    #[inline]
+    pub(crate) fn forced_single(&self) -> bool {
+        self.leaf <= 1
+    }
+    /// The SAH leaf-vs-split test of thesis eq. 2 and 3, multiplied through by SA(N) so that a node
+    /// with zero surface area (all-point boxes) needs no division: leaf iff
+    /// `c_I * n <= c_T + c_I * (SA_L n_L + SA_R n_R) / SA_N`.
+    /// `split_sum` is `SA_L n_L + SA_R n_R` with the same (half-)area scale as `node_area`.
+    #[inline]
+    pub(crate) fn sah_prefers_leaf(&self, n: usize, node_area: f32, split_sum: f32) -> bool {
+        let c = self.cost;
+        c.c_i * n as f32 * node_area <= c.c_t * node_area + c.c_i * split_sum
     }
 }

@@ -1,8 +1,173 @@
-//! Full-sweep SAH over all three axes with the presorted O(n log n) scheme (Frantal 2019 3.3.1).
+//! Full-sweep SAH over all three axes with the presorted O(n log n) scheme (Frantal 2019 3.3.1,
+//! after Wald and Havran 2006 and Ganestam et al. 2015): primitives are sorted once per axis by
+//! centroid; the three sorted arrays are kept for the whole build; after a split is chosen on one
+//! axis, the other two arrays are stable-partitioned by a per-primitive side flag, so every array
+//! stays sorted within each child and no node ever sorts again.
+//!
+//! Each sorted array holds 32-byte records (box + index) rather than bare indices, so the sweeps and
+//! partitions stream through memory instead of gathering boxes by index.
+use crate::boxa::BoxA;
+use crate::topdown::{build_nodes, Range};
 use crate::TopDownConfig;
 use bvhlab_bvh::{Aabb, Bvh, Vec3};
+use glam::Vec3A;
+
+#[derive(Clone, Copy, Debug)]
+#[repr(C)]
+struct SweepRef {
+    min: Vec3,
+    idx: u32,
+    max: Vec3,
+    _pad: u32,
+}
+
+impl SweepRef {
+    #[inline(always)]
+    fn min(&self) -> Vec3A {
+        self.min.into()
+    }
+    #[inline(always)]
+    fn max(&self) -> Vec3A {
+        self.max.into()
+    }
+}
+
+/// The best full-sweep split of a node: the first `n_left` primitives of the array sorted on `axis`.
+#[derive(Clone, Copy, Debug)]
+struct SweepSplit {
+    axis: usize,
+    n_left: usize,
+    /// `SA_L * n_L + SA_R * n_R` (half areas).
+    cost: f32,
+}
+
+/// Builder state: the three presorted arrays and scratch buffers, allocated once per build.
+struct Sweeper {
+    sorted: [Vec<SweepRef>; 3],
+    /// Right-sweep half areas: `right_area[i]` is the area of elements `i..` of the current range.
+    right_area: Vec<f32>,
+    /// Scratch for the stable partition (right part).
+    tmp: Vec<SweepRef>,
+    /// Side flag per primitive index (thesis 3.3.1).
+    is_left: Vec<bool>,
+}
 
 pub fn build(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> Bvh {
-    let _ = (boxes, centers, cfg);
-    todo!()
+    assert_eq!(boxes.len(), centers.len(), "builders need one centre per primitive box");
+    assert!(boxes.len() < u32::MAX as usize, "primitive indices are u32");
+    let n = boxes.len();
+    if n == 0 {
+        return Bvh::default();
+    }
+    let mut s = Sweeper::new(boxes, centers);
+    let mut bounds = BoxA::EMPTY;
+    for b in boxes {
+        bounds.grow(b.min.into(), b.max.into());
+    }
+    let root = Range { begin: 0, end: n, bounds, cbounds: BoxA::EMPTY };
+    let nodes = build_nodes(n, root, |r| s.split(r, cfg));
+    // All three arrays hold the same primitive set in every node range; take the x-sorted one.
+    Bvh { nodes, prim_indices: s.sorted[0].iter().map(|p| p.idx).collect() }
+}
+
+/// Sort key (centroid, index) as one u64: the f32 bits are mapped to an order-preserving u32
+/// (total order: -0 < +0, NaNs at the ends), the index breaks ties, so the order is deterministic.
+#[inline]
+fn sort_key(c: f32, idx: u32) -> u64 {
+    let b = c.to_bits();
+    let ordered = if b & 0x8000_0000 != 0 { !b } else { b | 0x8000_0000 };
+    ((ordered as u64) << 32) | idx as u64
+}
+
+impl Sweeper {
+    fn new(boxes: &[Aabb], centers: &[Vec3]) -> Self {
+        let n = boxes.len();
+        let mut keys: Vec<u64> = Vec::with_capacity(n);
+        let sorted = std::array::from_fn(|axis| {
+            keys.clear();
+            keys.extend(centers.iter().enumerate().map(|(i, c)| sort_key(c[axis], i as u32)));
+            keys.sort_unstable();
+            keys.iter()
+                .map(|&k| {
+                    let i = k as u32;
+                    let b = &boxes[i as usize];
+                    SweepRef { min: b.min, idx: i, max: b.max, _pad: 0 }
+                })
+                .collect()
+        });
+        Sweeper { sorted, right_area: vec![0.0; n], tmp: Vec::with_capacity(n), is_left: vec![false; n] }
+    }
+
+    /// Evaluates all `n - 1` candidates on all three axes (thesis 3.3.1 with eq. 2 costs). Ties go
+    /// to the lowest axis, then the lowest position.
+    fn find_split(&mut self, r: &Range) -> SweepSplit {
+        let n = r.len();
+        // Fallback if every cost is NaN (non-finite input): a valid median split on x.
+        let mut best = SweepSplit { axis: 0, n_left: n / 2, cost: f32::INFINITY };
+        for axis in 0..3 {
+            let a = &self.sorted[axis][r.begin..r.end];
+            let right_area = &mut self.right_area[..n];
+            let mut acc = BoxA::EMPTY;
+            for i in (1..n).rev() {
+                acc.grow(a[i].min(), a[i].max());
+                right_area[i] = acc.half_area();
+            }
+            let mut acc = BoxA::EMPTY;
+            for i in 0..n - 1 {
+                acc.grow(a[i].min(), a[i].max());
+                let n_l = (i + 1) as f32;
+                let cost = acc.half_area() * n_l + right_area[i + 1] * (n as f32 - n_l);
+                if cost < best.cost {
+                    best = SweepSplit { axis, n_left: i + 1, cost };
+                }
+            }
+        }
+        best
+    }
+
+    /// The split decision for one node: `None` makes a leaf.
+    fn split(&mut self, r: &Range, cfg: &TopDownConfig) -> Option<(Range, Range)> {
+        let n = r.len();
+        if n <= cfg.max_leaf() {
+            return None;
+        }
+        let best = self.find_split(r);
+        if !cfg.forced_single() && cfg.sah_prefers_leaf(n, r.bounds.half_area(), best.cost) {
+            return None;
+        }
+        let mid = r.begin + best.n_left;
+        // Flag sides from the chosen axis' array, which is already partitioned (it is sorted).
+        let chosen = &self.sorted[best.axis];
+        let (mut lb, mut rb) = (BoxA::EMPTY, BoxA::EMPTY);
+        for p in &chosen[r.begin..mid] {
+            self.is_left[p.idx as usize] = true;
+            lb.grow(p.min(), p.max());
+        }
+        for p in &chosen[mid..r.end] {
+            self.is_left[p.idx as usize] = false;
+            rb.grow(p.min(), p.max());
+        }
+        // Stable partition of the other two arrays: lefts compact in place (writes never pass
+        // reads), rights go through scratch and are copied back behind them.
+        for axis in (0..3).filter(|&a| a != best.axis) {
+            let arr = &mut self.sorted[axis][r.begin..r.end];
+            self.tmp.clear();
+            let mut l = 0;
+            for i in 0..n {
+                let p = arr[i];
+                if self.is_left[p.idx as usize] {
+                    arr[l] = p;
+                    l += 1;
+                } else {
+                    self.tmp.push(p);
+                }
+            }
+            debug_assert_eq!(l, best.n_left);
+            arr[l..].copy_from_slice(&self.tmp);
+        }
+        Some((
+            Range { begin: r.begin, end: mid, bounds: lb, cbounds: BoxA::EMPTY },
+            Range { begin: mid, end: r.end, bounds: rb, cbounds: BoxA::EMPTY },
+        ))
+    }
 }
