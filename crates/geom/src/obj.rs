@@ -128,9 +128,18 @@ fn produce<R: Read>(mut reader: R, tx: SyncSender<Vec<u8>>) -> Result<(Vec<u8>, 
         let end = if eof {
             text.len()
         } else {
-            match text[done..].iter().rposition(|&b| b == b'\n') {
-                Some(i) => done + i + 1,
-                None => continue,
+            // Bytes before `start` held no newline past `done`: search only the new data.
+            match text[start.max(done)..].iter().rposition(|&b| b == b'\n') {
+                Some(i) => start.max(done) + i + 1,
+                None => {
+                    // One long line so far: fail early on binary data instead of reading it all.
+                    if let Err(e) = std::str::from_utf8(&text[done..]) {
+                        if e.error_len().is_some() {
+                            return Err((Some(scanner.line + 1), "invalid UTF-8 (binary data?)".into()));
+                        }
+                    }
+                    continue;
+                }
             }
         };
         let block = &text[done..end];

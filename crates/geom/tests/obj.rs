@@ -238,3 +238,26 @@ fn stanford_bunny_if_present() {
     let b = s.bounds();
     assert!(b.extent().min_element() > 0.0 && b.extent().max_element() < 1.0, "{b:?}");
 }
+
+#[test]
+fn long_binary_line_fails_early_with_its_line() {
+    // 3 MiB of non-UTF-8 bytes without a newline, after two good lines.
+    let mut junk = b"v 0 0 0\nv 1 0 0\n".to_vec();
+    junk.extend(std::iter::repeat(0xffu8).take(3 << 20));
+    let f = tmp("longjunk.obj", &junk);
+    let e = load_obj(&f.0).unwrap_err();
+    assert_eq!(e.line, Some(3), "{e}");
+    // A long but valid line is fine (many vertices of one huge polygon).
+    let mut s = String::new();
+    let k = 150_000;
+    for i in 0..k {
+        s.push_str(&format!("v {i} {} 0\n", (i * i) % 7));
+    }
+    s.push('f');
+    for i in 1..=k {
+        s.push_str(&format!(" {i}"));
+    }
+    s.push('\n');
+    let f = tmp("longline.obj", s.as_bytes());
+    assert_eq!(load_obj(&f.0).unwrap().triangles.len(), k - 2);
+}
