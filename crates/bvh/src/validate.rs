@@ -7,6 +7,69 @@ use bvhlab_geom::Aabb;
 /// inside their parent's, and every leaf's box contains its primitives' boxes.
 /// Returns a description of the first violation.
 pub fn validate(bvh: &Bvh, prim_boxes: &[Aabb]) -> Result<(), String> {
-    let _ = (bvh, prim_boxes);
-    todo!()
+    let n_nodes = bvh.nodes.len();
+    if n_nodes == 0 {
+        return if prim_boxes.is_empty() { Ok(()) } else { Err("no nodes".into()) };
+    }
+    if bvh.prim_indices.len() != prim_boxes.len() {
+        return Err(format!(
+            "index array holds {} references for {} primitives",
+            bvh.prim_indices.len(),
+            prim_boxes.len()
+        ));
+    }
+    let mut visited = vec![false; n_nodes];
+    let mut seen = vec![false; prim_boxes.len()];
+    let mut slot_used = vec![false; bvh.prim_indices.len()];
+    let mut stack = vec![0usize];
+    let mut reached = 0usize;
+    while let Some(i) = stack.pop() {
+        if visited[i] {
+            return Err(format!("node {i} reached twice (cycle or shared child)"));
+        }
+        visited[i] = true;
+        reached += 1;
+        let n = &bvh.nodes[i];
+        if n.is_leaf() {
+            let (a, b) = (n.first as usize, n.first as usize + n.count as usize);
+            if b > bvh.prim_indices.len() {
+                return Err(format!("leaf {i} range {a}..{b} exceeds index array"));
+            }
+            for s in a..b {
+                if slot_used[s] {
+                    return Err(format!("index slot {s} used by two leaves"));
+                }
+                slot_used[s] = true;
+                let p = bvh.prim_indices[s] as usize;
+                if p >= prim_boxes.len() {
+                    return Err(format!("leaf {i} references primitive {p} out of range"));
+                }
+                if seen[p] {
+                    return Err(format!("primitive {p} referenced twice"));
+                }
+                seen[p] = true;
+                if !n.bounds.contains(&prim_boxes[p]) {
+                    return Err(format!("leaf {i} box does not contain primitive {p}"));
+                }
+            }
+        } else {
+            let l = n.first as usize;
+            if l == 0 || l + 1 >= n_nodes {
+                return Err(format!("inner node {i} has invalid children index {l}"));
+            }
+            for c in [l, l + 1] {
+                if !n.bounds.contains(&bvh.nodes[c].bounds) {
+                    return Err(format!("child {c} box is not inside parent {i}"));
+                }
+                stack.push(c);
+            }
+        }
+    }
+    if reached != n_nodes {
+        return Err(format!("{} of {} nodes unreachable from the root", n_nodes - reached, n_nodes));
+    }
+    if let Some(p) = seen.iter().position(|s| !s) {
+        return Err(format!("primitive {p} not referenced"));
+    }
+    Ok(())
 }
