@@ -1,0 +1,28 @@
+# bvhlab recipes. `just` alone runs the quick sweep.
+set shell := ["bash", "-euo", "pipefail", "-c"]
+
+default: sweep
+
+# Run an experiment (cached: a re-run computes only what changed) and write reports/<name>/index.html.
+sweep EXP="experiments/quick.toml" *ARGS="":
+    cargo run --release -- sweep {{EXP}} {{ARGS}}
+
+# The README's test command.
+test:
+    cargo test --workspace
+
+# Rebuild the report of an experiment from the cache (every stage is a cache hit when nothing changed).
+report EXP="experiments/quick.toml":
+    cargo run --release -- sweep {{EXP}}
+
+# Builder speed and SAH cost beside Embree (../shared/tools/embree-anchor) in the same run.
+bench SCENE="../shared/scenes/stanford_dragon.obj.gz":
+    bash scripts/bench-builders.sh {{SCENE}}
+
+# The paper reproduction on the nine shared scenes (several minutes cold).
+frantal:
+    cargo run --release -- sweep experiments/frantal-sah.toml
+
+# What CI runs.
+ci:
+    bash .ci/run

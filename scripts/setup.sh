@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Installs what bvhlab needs beyond the Rust toolchain, when missing. Safe to re-run.
+set -euo pipefail
+need=()
+command -v pkg-config >/dev/null 2>&1 || need+=(pkg-config)
+if [ ${#need[@]} -gt 0 ]; then
+  if [ "$(id -u)" = 0 ]; then
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}" >/dev/null
+  else
+    echo "please install: ${need[*]}" >&2
+  fi
+fi
+if ! command -v just >/dev/null 2>&1; then
+  echo "note: 'just' is not installed; recipes in justfile can be run as plain cargo commands, or: cargo install just" >&2
+fi
