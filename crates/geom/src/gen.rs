@@ -131,7 +131,11 @@ pub fn generate(spec: &str) -> Result<Scene, LoadError> {
 /// so equal scenes get equal keys (`sphere` and `sphere:n=20000` alike). `spec` is after `gen:`.
 pub fn canonical_spec(spec_after_gen: &str) -> Result<String, LoadError> {
     let (g, values) = parse(spec_after_gen)?;
-    let kv: Vec<String> = values.0.iter().map(|(k, v)| format!("{k}={}", v.canonical())).collect();
+    let kv: Vec<String> = values
+        .0
+        .iter()
+        .map(|(k, v)| format!("{k}={}", v.canonical()))
+        .collect();
     Ok(format!("{}:{}", g.info.name, kv.join(",")))
 }
 
@@ -169,22 +173,34 @@ impl Values {
 }
 
 fn spec_err(spec: &str, reason: String) -> LoadError {
-    LoadError { file: PathBuf::from(format!("gen:{spec}")), line: None, reason }
+    LoadError {
+        file: PathBuf::from(format!("gen:{spec}")),
+        line: None,
+        reason,
+    }
 }
 
 fn parse_value(name: &str, s: &str, range: Range) -> Result<Value, String> {
     match range {
         Range::Int(lo, hi) => {
-            let v: u64 = s.parse().map_err(|_| format!("parameter {name}: {s:?} is not a non-negative integer"))?;
+            let v: u64 = s
+                .parse()
+                .map_err(|_| format!("parameter {name}: {s:?} is not a non-negative integer"))?;
             if v < lo || v > hi {
-                return Err(format!("parameter {name} = {v} is out of range {lo}..={hi}"));
+                return Err(format!(
+                    "parameter {name} = {v} is out of range {lo}..={hi}"
+                ));
             }
             Ok(Value::Int(v))
         }
         Range::Float(lo, hi) => {
-            let v: f64 = s.parse().map_err(|_| format!("parameter {name}: {s:?} is not a number"))?;
+            let v: f64 = s
+                .parse()
+                .map_err(|_| format!("parameter {name}: {s:?} is not a number"))?;
             if !v.is_finite() || v < lo || v > hi {
-                return Err(format!("parameter {name} = {s} is out of range {lo}..={hi}"));
+                return Err(format!(
+                    "parameter {name} = {s} is out of range {lo}..={hi}"
+                ));
             }
             Ok(Value::Float(v))
         }
@@ -197,25 +213,50 @@ fn parse(spec: &str) -> Result<(Gen, Values), LoadError> {
         None => (spec, ""),
     };
     let names: Vec<&str> = table().iter().map(|g| g.info.name).collect();
-    let g = table().into_iter().find(|g| g.info.name == name).ok_or_else(|| {
-        spec_err(spec, format!("unknown generator {name:?}; valid generators: {}", names.join(", ")))
-    })?;
+    let g = table()
+        .into_iter()
+        .find(|g| g.info.name == name)
+        .ok_or_else(|| {
+            spec_err(
+                spec,
+                format!(
+                    "unknown generator {name:?}; valid generators: {}",
+                    names.join(", ")
+                ),
+            )
+        })?;
     let params: Vec<Param> = g
         .info
         .params
         .iter()
         .zip(g.ranges)
-        .map(|(&(name, default, _), &range)| Param { name, default, range })
+        .map(|(&(name, default, _), &range)| Param {
+            name,
+            default,
+            range,
+        })
         .collect();
     let valid = || params.iter().map(|p| p.name).collect::<Vec<_>>().join(", ");
     let mut given: BTreeMap<&'static str, Value> = BTreeMap::new();
     for kv in args.split(',').filter(|s| !s.trim().is_empty()) {
         let (k, v) = kv.split_once('=').ok_or_else(|| {
-            spec_err(spec, format!("expected key=value, got {kv:?} (parameters of {name}: {})", valid()))
+            spec_err(
+                spec,
+                format!(
+                    "expected key=value, got {kv:?} (parameters of {name}: {})",
+                    valid()
+                ),
+            )
         })?;
         let (k, v) = (k.trim(), v.trim());
         let p = params.iter().find(|p| p.name == k).ok_or_else(|| {
-            spec_err(spec, format!("unknown parameter {k:?} for generator {name}; valid parameters: {}", valid()))
+            spec_err(
+                spec,
+                format!(
+                    "unknown parameter {k:?} for generator {name}; valid parameters: {}",
+                    valid()
+                ),
+            )
         })?;
         let val = parse_value(k, v, p.range).map_err(|r| spec_err(spec, r))?;
         if given.insert(p.name, val).is_some() {
@@ -311,7 +352,15 @@ fn terrain(n: u64, h: f64, seed: u64) -> Vec<Triangle> {
     // Three octaves of lattice noise: 4, 16 and 64 cells, weights 1, 1/4, 1/16.
     let octaves: Vec<(usize, f64, Vec<f64>)> = [(4usize, 1.0), (16, 0.25), (64, 0.0625)]
         .into_iter()
-        .map(|(c, w)| (c, w, (0..(c + 1) * (c + 1)).map(|_| rng.range(-1.0, 1.0)).collect()))
+        .map(|(c, w)| {
+            (
+                c,
+                w,
+                (0..(c + 1) * (c + 1))
+                    .map(|_| rng.range(-1.0, 1.0))
+                    .collect(),
+            )
+        })
         .collect();
     let norm = h / (1.0 + 0.25 + 0.0625);
     let height = |x: f64, z: f64| {
@@ -397,8 +446,14 @@ fn push_box(out: &mut Vec<Triangle>, lo: DVec3, hi: DVec3) {
         )
     };
     // Quads as corner index lists (bit 0 = x, bit 1 = y, bit 2 = z), wound outward.
-    const QUADS: [[usize; 4]; 6] =
-        [[0, 4, 6, 2], [1, 3, 7, 5], [0, 1, 5, 4], [2, 6, 7, 3], [0, 2, 3, 1], [4, 5, 7, 6]];
+    const QUADS: [[usize; 4]; 6] = [
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+    ];
     for [a, b, c, d] in QUADS {
         out.push(tri(v(a), v(b), v(c)));
         out.push(tri(v(a), v(c), v(d)));
@@ -416,7 +471,11 @@ fn outlier(n: u64, e: u64) -> Vec<Triangle> {
     let dir = DVec3::ONE / 3f64.sqrt();
     let p = dir * dist;
     let t = size * 1e-3;
-    out.push(tri(p, p + DVec3::new(t, 0.0, 0.0), p + DVec3::new(0.0, t, 0.0)));
+    out.push(tri(
+        p,
+        p + DVec3::new(t, 0.0, 0.0),
+        p + DVec3::new(0.0, t, 0.0),
+    ));
     out
 }
 
@@ -482,7 +541,12 @@ mod tests {
     #[test]
     fn dyadic_centres_are_exact() {
         let s = degenerate(600, 3);
-        let centres: Vec<Vec3> = s.iter().skip(4).step_by(6).map(|t| t.bounds().center()).collect();
+        let centres: Vec<Vec3> = s
+            .iter()
+            .skip(4)
+            .step_by(6)
+            .map(|t| t.bounds().center())
+            .collect();
         assert!(centres.len() >= 99);
         assert!(centres.iter().all(|c| *c == centres[0]));
     }

@@ -8,20 +8,33 @@
 use crate::{LoadError, Scene, Triangle};
 use glam::Vec3;
 use std::io::{BufRead, Read};
-use std::sync::mpsc::{Receiver, SyncSender};
 use std::path::Path;
+use std::sync::mpsc::{Receiver, SyncSender};
 
 /// Load an `.obj` or gzip-compressed `.obj.gz` file (detected by the gzip magic bytes, so a
 /// misnamed file still loads). Non-finite triangles are dropped and counted; zero-area ones kept.
 pub fn load_obj(path: &Path) -> Result<Scene, LoadError> {
-    let err = |line: Option<usize>, reason: String| LoadError { file: path.to_path_buf(), line, reason };
-    let file = std::fs::File::open(path).map_err(|e| err(None, format!("cannot open file: {e}")))?;
+    let err = |line: Option<usize>, reason: String| LoadError {
+        file: path.to_path_buf(),
+        line,
+        reason,
+    };
+    let file =
+        std::fs::File::open(path).map_err(|e| err(None, format!("cannot open file: {e}")))?;
     let mut file = std::io::BufReader::with_capacity(1 << 16, file);
-    let head = file.fill_buf().map_err(|e| err(None, format!("cannot read file: {e}")))?;
+    let head = file
+        .fill_buf()
+        .map_err(|e| err(None, format!("cannot read file: {e}")))?;
     let result = if head.starts_with(&[0x1f, 0x8b]) {
         parse_obj_reader(flate2::bufread::MultiGzDecoder::new(file))
-    } else if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("gz")) {
-        return Err(err(None, "not a gzip file (missing gzip header) despite the .gz extension".into()));
+    } else if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("gz"))
+    {
+        return Err(err(
+            None,
+            "not a gzip file (missing gzip header) despite the .gz extension".into(),
+        ));
     } else {
         parse_obj_reader(file)
     };
@@ -39,6 +52,8 @@ pub fn parse_obj_bytes(bytes: &[u8]) -> Result<Scene, (Option<usize>, String)> {
 /// block on only once it passed validation; tobj parses the validated blocks as they arrive.
 /// So tobj never sees input the scan rejected, and reading + validation overlap with parsing.
 pub fn parse_obj_reader<R: Read + Send>(reader: R) -> Result<Scene, (Option<usize>, String)> {
+    // Other fields exist only under tobj features (merging, reordering); keep them at default.
+    #[allow(clippy::needless_update)]
     let opts = tobj::LoadOptions {
         triangulate: true,
         single_index: false,
@@ -48,25 +63,39 @@ pub fn parse_obj_reader<R: Read + Send>(reader: R) -> Result<Scene, (Option<usiz
     };
     // Materials are irrelevant to positions-only loading: never open .mtl files.
     let run_tobj = |mut r: &mut dyn BufRead| {
-        tobj::load_obj_buf(&mut r, &opts, |_| Ok(Default::default())).map_err(|e| (None, format!("OBJ parse error: {e}")))
+        tobj::load_obj_buf(&mut r, &opts, |_| Ok(Default::default()))
+            .map_err(|e| (None, format!("OBJ parse error: {e}")))
     };
     let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<u8>>(8);
     let (produced, streamed) = std::thread::scope(|s| {
         let producer = s.spawn(move || produce(reader, tx));
-        let mut chan = ChannelReader { rx, buf: Vec::new(), pos: 0 };
+        let mut chan = ChannelReader {
+            rx,
+            buf: Vec::new(),
+            pos: 0,
+        };
         let streamed = run_tobj(&mut chan);
         // Drop the receiver before joining so a producer blocked on a full channel wakes up.
         drop(chan);
-        let produced = producer.join().unwrap_or_else(|_| Err((None, "internal: reader thread panicked".into())));
+        let produced = producer
+            .join()
+            .unwrap_or_else(|_| Err((None, "internal: reader thread panicked".into())));
         (produced, streamed)
     });
     let (text, scan) = produced?;
     if scan.faces == 0 {
-        return Err((None, format!("no triangles (no face statements; {} vertices)", scan.vertices)));
+        return Err((
+            None,
+            format!(
+                "no triangles (no face statements; {} vertices)",
+                scan.vertices
+            ),
+        ));
     }
     let models = if scan.needs_filter {
         // Rare: the stream to tobj was cut at the first line needing a rewrite; redo on the whole text.
-        let text = std::str::from_utf8(&text).map_err(|_| (None, "internal: text not UTF-8".to_string()))?;
+        let text = std::str::from_utf8(&text)
+            .map_err(|_| (None, "internal: text not UTF-8".to_string()))?;
         run_tobj(&mut filter(text).as_bytes())?.0
     } else {
         streamed?.0
@@ -91,7 +120,10 @@ pub fn parse_obj_reader<R: Read + Send>(reader: R) -> Result<Scene, (Option<usiz
     if scene.triangles.is_empty() {
         return Err((
             None,
-            format!("no triangles with finite coordinates ({} non-finite dropped)", scene.dropped_triangles),
+            format!(
+                "no triangles with finite coordinates ({} non-finite dropped)",
+                scene.dropped_triangles
+            ),
         ));
     }
     Ok(scene)
@@ -101,7 +133,10 @@ type LineErr = (Option<usize>, String);
 
 /// Read everything, validate block by block (whole lines only), forward validated blocks to tobj.
 /// Returns the whole text (for the rare rewrite path and for error location) and the scan result.
-fn produce<R: Read>(mut reader: R, tx: SyncSender<Vec<u8>>) -> Result<(Vec<u8>, ScanResult), LineErr> {
+fn produce<R: Read>(
+    mut reader: R,
+    tx: SyncSender<Vec<u8>>,
+) -> Result<(Vec<u8>, ScanResult), LineErr> {
     const BLOCK: usize = 1 << 20;
     let mut tx = Some(tx);
     let mut text: Vec<u8> = Vec::new();
@@ -120,7 +155,12 @@ fn produce<R: Read>(mut reader: R, tx: SyncSender<Vec<u8>>) -> Result<(Vec<u8>, 
                 }
                 Ok(k) => filled += k,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(e) => return Err((None, format!("read error (truncated or corrupt gzip?): {e}"))),
+                Err(e) => {
+                    return Err((
+                        None,
+                        format!("read error (truncated or corrupt gzip?): {e}"),
+                    ))
+                }
             }
         }
         text.truncate(filled);
@@ -135,7 +175,10 @@ fn produce<R: Read>(mut reader: R, tx: SyncSender<Vec<u8>>) -> Result<(Vec<u8>, 
                     // One long line so far: fail early on binary data instead of reading it all.
                     if let Err(e) = std::str::from_utf8(&text[done..]) {
                         if e.error_len().is_some() {
-                            return Err((Some(scanner.line + 1), "invalid UTF-8 (binary data?)".into()));
+                            return Err((
+                                Some(scanner.line + 1),
+                                "invalid UTF-8 (binary data?)".into(),
+                            ));
                         }
                     }
                     continue;
@@ -146,7 +189,12 @@ fn produce<R: Read>(mut reader: R, tx: SyncSender<Vec<u8>>) -> Result<(Vec<u8>, 
         let chunk = match std::str::from_utf8(block) {
             Ok(t) => t,
             Err(e) => {
-                let line = scanner.line + 1 + block[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count();
+                let line = scanner.line
+                    + 1
+                    + block[..e.valid_up_to()]
+                        .iter()
+                        .filter(|&&b| b == b'\n')
+                        .count();
                 return Err((Some(line), "invalid UTF-8 (binary data?)".into()));
             }
         };
@@ -249,15 +297,23 @@ impl Scanner {
         match words.next() {
             Some("v") => {
                 if !parse_floats(&mut words, 3) {
-                    return Err(format!("vertex needs three numeric coordinates: {:?}", clip(line)));
+                    return Err(format!(
+                        "vertex needs three numeric coordinates: {:?}",
+                        clip(line)
+                    ));
                 }
                 let extra: Vec<&str> = words.collect();
                 match extra.len() {
                     0 => {}
                     1 => match extra[0].parse::<f32>() {
-                        Ok(w) if w == 0.0 => return Err("vertex weight w is zero".into()),
+                        Ok(0.0) => return Err("vertex weight w is zero".into()),
                         Ok(_) => {}
-                        Err(_) => return Err(format!("vertex weight is not a number: {:?}", clip(extra[0]))),
+                        Err(_) => {
+                            return Err(format!(
+                                "vertex weight is not a number: {:?}",
+                                clip(extra[0])
+                            ))
+                        }
                     },
                     // Colours: cut off before tobj, which misaligns files mixing coloured and plain vertices.
                     3 => self.needs_filter = true,
@@ -267,7 +323,10 @@ impl Scanner {
             }
             Some("vt") => {
                 if !parse_floats(&mut words, 2) {
-                    return Err(format!("texture coordinate needs two numbers: {:?}", clip(line)));
+                    return Err(format!(
+                        "texture coordinate needs two numbers: {:?}",
+                        clip(line)
+                    ));
                 }
                 self.counts[1] += 1;
             }
@@ -285,7 +344,10 @@ impl Scanner {
                     for (kind, part) in parts.by_ref().take(3).enumerate() {
                         if part.is_empty() {
                             if kind == 0 {
-                                return Err(format!("face vertex {:?} has no position index", clip(w)));
+                                return Err(format!(
+                                    "face vertex {:?} has no position index",
+                                    clip(w)
+                                ));
                             }
                             continue;
                         }
@@ -310,7 +372,10 @@ impl Scanner {
                         }
                     }
                     if parts.next().is_some() {
-                        return Err(format!("face vertex {:?} has more than three '/'-separated indices", clip(w)));
+                        return Err(format!(
+                            "face vertex {:?} has more than three '/'-separated indices",
+                            clip(w)
+                        ));
                     }
                 }
                 if k < 3 {
@@ -329,15 +394,21 @@ impl Scanner {
     /// Check forward references against the final totals; `text` is the whole file (only
     /// re-read on this error path, to find the offending line).
     fn finish(&self, text: &str) -> Result<ScanResult, (usize, String)> {
-        for kind in 0..3 {
-            let total = self.counts[kind];
+        for (kind, &total) in self.counts.iter().enumerate() {
             if self.max_ref[kind] > total as u64 {
                 let what = KIND[kind];
                 let line = first_line_over(text, kind, total).unwrap_or(self.line);
-                return Err((line, format!("face {what} index out of range (the file defines {total} {what}s)")));
+                return Err((
+                    line,
+                    format!("face {what} index out of range (the file defines {total} {what}s)"),
+                ));
             }
         }
-        Ok(ScanResult { vertices: self.counts[0], faces: self.faces, needs_filter: self.needs_filter })
+        Ok(ScanResult {
+            vertices: self.counts[0],
+            faces: self.faces,
+            needs_filter: self.needs_filter,
+        })
     }
 }
 

@@ -9,7 +9,14 @@ fn all_names() -> Vec<&'static str> {
 #[test]
 fn required_generators_exist_and_are_documented() {
     let names = all_names();
-    for n in ["sphere", "terrain", "hairball", "city", "outlier", "degenerate"] {
+    for n in [
+        "sphere",
+        "terrain",
+        "hairball",
+        "city",
+        "outlier",
+        "degenerate",
+    ] {
         assert!(names.contains(&n), "{n} missing from {names:?}");
     }
     for g in generators() {
@@ -34,7 +41,10 @@ fn deterministic_and_finite() {
         assert!(a.triangles.iter().all(|t| t.is_finite()), "{name}");
         // Bit-identical, not merely approximately equal.
         let bits = |s: &bvhlab_geom::Scene| -> Vec<u32> {
-            s.triangles.iter().flat_map(|t| t.v.iter().flat_map(|v| v.to_array().map(f32::to_bits))).collect()
+            s.triangles
+                .iter()
+                .flat_map(|t| t.v.iter().flat_map(|v| v.to_array().map(f32::to_bits)))
+                .collect()
         };
         assert_eq!(bits(&a), bits(&b), "{name}");
     }
@@ -59,7 +69,10 @@ fn requested_sizes() {
             assert!(rel < 0.15, "{name} n={n}: got {got}");
         }
         for name in ["hairball", "degenerate"] {
-            assert_eq!(generate(&format!("{name}:n={n}")).unwrap().triangles.len() as u64, n);
+            assert_eq!(
+                generate(&format!("{name}:n={n}")).unwrap().triangles.len() as u64,
+                n
+            );
         }
         // outlier = sphere + exactly one triangle.
         let s = generate(&format!("sphere:n={n}")).unwrap().triangles.len();
@@ -118,7 +131,10 @@ fn city_ground_is_far_larger_than_buildings() {
     let s = generate("city:blocks=10,ground=100").unwrap();
     let ground = s.triangles[0].bounds().union(&s.triangles[1].bounds());
     assert!((ground.extent().x - 1000.0).abs() < 1e-3, "{ground:?}");
-    let biggest = s.triangles[2..].iter().map(|t| t.bounds().extent().max_element()).fold(0.0, f32::max);
+    let biggest = s.triangles[2..]
+        .iter()
+        .map(|t| t.bounds().extent().max_element())
+        .fold(0.0, f32::max);
     assert!(biggest <= 4.0 && ground.extent().x / biggest >= 250.0);
     // Buildings stand inside the ground, on or above it.
     for t in &s.triangles[2..] {
@@ -139,7 +155,9 @@ fn outlier_distance_scales_with_e() {
         assert!(d > prev);
         prev = d;
         // The rest of the scene is the unit sphere.
-        let rest = s.triangles[..s.triangles.len() - 1].iter().fold(bvhlab_geom::Aabb::EMPTY, |b, t| b.union(&t.bounds()));
+        let rest = s.triangles[..s.triangles.len() - 1]
+            .iter()
+            .fold(bvhlab_geom::Aabb::EMPTY, |b, t| b.union(&t.bounds()));
         assert!(rest.max.max_element() <= 1.0 + 1e-6);
         // The outlier is tiny relative to the object.
         assert!(last.bounds().extent().max_element() <= 0.01 || e > 15);
@@ -152,36 +170,61 @@ fn degenerate_contains_each_kind() {
     assert_eq!(s.triangles.len(), 600);
     let zero = s.triangles.iter().filter(|t| t.area() == 0.0).count();
     assert!(zero >= 200, "{zero}"); // collinear + points (+ duplicates of those)
-    let points = s.triangles.iter().filter(|t| t.v[0] == t.v[1] && t.v[1] == t.v[2]).count();
+    let points = s
+        .triangles
+        .iter()
+        .filter(|t| t.v[0] == t.v[1] && t.v[1] == t.v[2])
+        .count();
     assert!(points >= 100);
     let mut dups = 0;
     for (i, t) in s.triangles.iter().enumerate() {
         dups += s.triangles[..i].contains(t) as usize;
     }
     assert!(dups >= 100, "{dups}");
-    let flat = s.triangles.iter().filter(|t| t.bounds().extent().z == 0.0 && t.area() > 0.0).count();
+    let flat = s
+        .triangles
+        .iter()
+        .filter(|t| t.bounds().extent().z == 0.0 && t.area() > 0.0)
+        .count();
     assert!(flat >= 100, "{flat}");
 }
 
 #[test]
 fn canonical_spec_fills_defaults_and_sorts() {
     let a = canonical_spec("sphere").unwrap();
-    let n = generators().into_iter().find(|g| g.name == "sphere").unwrap().params[0].1;
+    let n = generators()
+        .into_iter()
+        .find(|g| g.name == "sphere")
+        .unwrap()
+        .params[0]
+        .1;
     assert_eq!(a, format!("sphere:n={n}"));
     assert_eq!(canonical_spec(&format!("sphere:n={n}")).unwrap(), a);
     assert_eq!(canonical_spec(&format!("sphere:n=0{n}")).unwrap(), a);
     let t1 = canonical_spec("terrain:seed=3,h=0.050").unwrap();
     let t2 = canonical_spec("terrain:h=5e-2,seed=3").unwrap();
     assert_eq!(t1, t2);
-    let keys: Vec<&str> = t1.split_once(':').unwrap().1.split(',').map(|kv| kv.split('=').next().unwrap()).collect();
+    let keys: Vec<&str> = t1
+        .split_once(':')
+        .unwrap()
+        .1
+        .split(',')
+        .map(|kv| kv.split('=').next().unwrap())
+        .collect();
     let mut sorted = keys.clone();
     sorted.sort();
     assert_eq!(keys, sorted);
     assert_eq!(keys.len(), 3);
-    assert_ne!(canonical_spec("terrain:seed=4").unwrap(), canonical_spec("terrain:seed=3").unwrap());
+    assert_ne!(
+        canonical_spec("terrain:seed=4").unwrap(),
+        canonical_spec("terrain:seed=3").unwrap()
+    );
     // The canonical spec round-trips and generates the same scene.
     assert_eq!(canonical_spec(&t1).unwrap(), t1);
-    assert_eq!(generate(&t1).unwrap().triangles, generate("terrain:seed=3,h=0.05").unwrap().triangles);
+    assert_eq!(
+        generate(&t1).unwrap().triangles,
+        generate("terrain:seed=3,h=0.05").unwrap().triangles
+    );
 }
 
 #[test]

@@ -16,7 +16,10 @@ impl Drop for Tmp {
 }
 fn tmp(name: &str, bytes: &[u8]) -> Tmp {
     let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-    let p = std::env::temp_dir().join(format!("bvhlab-geom-test-{}-{n}-{name}", std::process::id()));
+    let p = std::env::temp_dir().join(format!(
+        "bvhlab-geom-test-{}-{n}-{name}",
+        std::process::id()
+    ));
     std::fs::write(&p, bytes).unwrap();
     Tmp(p)
 }
@@ -31,7 +34,10 @@ fn load_str(s: &str) -> Result<bvhlab_geom::Scene, LoadError> {
 }
 fn err_line(s: &str) -> (Option<usize>, String) {
     match load_str(s) {
-        Ok(sc) => panic!("expected an error for {s:?}, got {} triangles", sc.triangles.len()),
+        Ok(sc) => panic!(
+            "expected an error for {s:?}, got {} triangles",
+            sc.triangles.len()
+        ),
         Err(e) => {
             // The message names the file and (when known) the line.
             let msg = e.to_string();
@@ -124,7 +130,13 @@ fn only_non_finite_triangles_is_an_error() {
 
 #[test]
 fn no_triangles_is_an_error() {
-    for s in ["", "\n\n", "# just a comment\n", "v 0 0 0\nv 1 0 0\nv 0 1 0\n", "v 0 0 0\nv 1 0 0\nl 1 2\n"] {
+    for s in [
+        "",
+        "\n\n",
+        "# just a comment\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\n",
+        "v 0 0 0\nv 1 0 0\nl 1 2\n",
+    ] {
         let (_, reason) = err_line(s);
         assert!(reason.contains("no triangles"), "{s:?}: {reason}");
     }
@@ -165,6 +177,7 @@ fn malformed_lines_are_reported_with_their_line() {
         ("v 1 2 abc\nf 1 2 3\n", 4, "numeric"),
         ("v 1 2\nf 1 2 3\n", 4, "numeric"),
         ("v 1 2 3 0\nf 1 2 3\n", 4, "zero"),
+        ("v 1 2 3 -0.0\nf 1 2 3\n", 4, "zero"),
         ("v 1 2 3 4 5\nf 1 2 3\n", 4, "5 values"),
         ("vt x y\nf 1 2 3\n", 4, "texture"),
         ("vn 1 2\nf 1 2 3\n", 4, "normal"),
@@ -194,13 +207,17 @@ fn binary_junk_is_an_error_not_a_panic() {
     let e = load_obj(&f.0).unwrap_err();
     assert!(e.line.is_some_and(|l| l >= 3), "{e}");
     // Pseudo-random printable garbage built from OBJ-ish tokens: must never panic.
-    let toks = ["v", "f", "vt", "vn", "l", "o", "g", "usemtl", "1", "-1", "0", "2/1", "3//2", "1/2/3", "nan",
-        "1e39", "-", "/", "//", "x", "#", "\n", "\n", " ", "99", "-7", "1.5", "s"];
+    let toks = [
+        "v", "f", "vt", "vn", "l", "o", "g", "usemtl", "1", "-1", "0", "2/1", "3//2", "1/2/3",
+        "nan", "1e39", "-", "/", "//", "x", "#", "\n", "\n", " ", "99", "-7", "1.5", "s",
+    ];
     let mut x = 12345u64;
     for _ in 0..300 {
         let mut s = String::new();
         for _ in 0..60 {
-            x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             s.push_str(toks[(x >> 33) as usize % toks.len()]);
             s.push(' ');
         }
@@ -227,7 +244,10 @@ fn many_lines_across_stream_blocks() {
 
 #[test]
 fn stanford_bunny_if_present() {
-    let p = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/scenes/stanford_bunny.obj.gz");
+    let p = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/scenes/stanford_bunny.obj.gz"
+    );
     if !std::path::Path::new(p).exists() {
         eprintln!("skipping: {p} not found");
         return;
@@ -236,14 +256,17 @@ fn stanford_bunny_if_present() {
     assert_eq!(s.triangles.len(), 69_451);
     assert_eq!(s.dropped_triangles, 0);
     let b = s.bounds();
-    assert!(b.extent().min_element() > 0.0 && b.extent().max_element() < 1.0, "{b:?}");
+    assert!(
+        b.extent().min_element() > 0.0 && b.extent().max_element() < 1.0,
+        "{b:?}"
+    );
 }
 
 #[test]
 fn long_binary_line_fails_early_with_its_line() {
     // 3 MiB of non-UTF-8 bytes without a newline, after two good lines.
     let mut junk = b"v 0 0 0\nv 1 0 0\n".to_vec();
-    junk.extend(std::iter::repeat(0xffu8).take(3 << 20));
+    junk.extend(std::iter::repeat_n(0xffu8, 3 << 20));
     let f = tmp("longjunk.obj", &junk);
     let e = load_obj(&f.0).unwrap_err();
     assert_eq!(e.line, Some(3), "{e}");
