@@ -113,13 +113,36 @@ impl RayBox {
     }
 
     /// Entry distance if the ray meets `b` within [0, tmax], else `None`.
+    /// Plain `<` min/max (one instruction each) instead of NaN-aware `f32::min`: inputs here are
+    /// never NaN (finite inverse, finite or infinite bounds), and a NaN would only make `near <= far`
+    /// false, i.e. a miss.
     #[inline(always)]
     fn hit(&self, b: &Aabb, tmax: f32) -> Option<f32> {
-        let t0 = (b.min - self.origin) * self.inv_dir;
-        let t1 = (b.max - self.origin) * self.inv_dir;
-        let near = t0.min(t1).max_element().max(0.0);
-        let far = t0.max(t1).min_element().min(tmax) * SLAB_ROBUST;
-        // `near <= far` is false for NaN (only possible with NaN input), i.e. a miss.
+        #[inline(always)]
+        fn mn(a: f32, b: f32) -> f32 {
+            if a < b {
+                a
+            } else {
+                b
+            }
+        }
+        #[inline(always)]
+        fn mx(a: f32, b: f32) -> f32 {
+            if a > b {
+                a
+            } else {
+                b
+            }
+        }
+        let (o, i) = (self.origin, self.inv_dir);
+        let x0 = (b.min.x - o.x) * i.x;
+        let x1 = (b.max.x - o.x) * i.x;
+        let y0 = (b.min.y - o.y) * i.y;
+        let y1 = (b.max.y - o.y) * i.y;
+        let z0 = (b.min.z - o.z) * i.z;
+        let z1 = (b.max.z - o.z) * i.z;
+        let near = mx(mx(mn(x0, x1), mn(y0, y1)), mx(mn(z0, z1), 0.0));
+        let far = mn(mn(mx(x0, x1), mx(y0, y1)), mn(mx(z0, z1), tmax)) * SLAB_ROBUST;
         if near <= far {
             Some(near)
         } else {
