@@ -17,6 +17,8 @@ fn rays(scene: &Scene, n: usize, seed: u64) -> Vec<Ray> {
 }
 
 /// Same primitive, or the same t within 1e-4 relative (a tie between different triangles).
+/// (trace and brute_force share the triangle test and tie rule, so today they agree exactly; the
+/// tolerance is the project-wide oracle criterion.)
 fn agrees(g: &Hit, w: &Hit) -> bool {
     g.prim == w.prim
         || (g.is_hit() && w.is_hit() && (g.t - w.t).abs() <= 1e-4 * w.t.abs().max(1e-30))
