@@ -224,7 +224,9 @@ fn trace_one(
         return (Hit::NONE, 0, 0);
     }
     let rb = RayBox::new(ray);
-    if rb.hit(&root.bounds, best.t).is_none() {
+    // The slab test sees the empty box (min = +inf, max = -inf) as an infinite interval; only the
+    // root can be empty in a valid BVH (every leaf box contains its triangles), so check it here.
+    if root.bounds.is_empty() || rb.hit(&root.bounds, best.t).is_none() {
         return (Hit::NONE, 0, 0);
     }
     stack.clear();

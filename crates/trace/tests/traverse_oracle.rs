@@ -195,6 +195,20 @@ fn empty_and_malformed_inputs_do_not_panic() {
     let rays = rays_for(&tris, 50, 1);
     let s = trace(&Bvh::default(), &tris, &rays);
     assert_eq!(s.hit_count, 0);
+    // An empty scene's tree: a root with the empty box is not entered.
+    let empty = Bvh {
+        nodes: vec![
+            Node::inner(Aabb::EMPTY, 1),
+            Node::leaf(Aabb::EMPTY, 0, 1),
+            Node::leaf(Aabb::EMPTY, 0, 1),
+        ],
+        prim_indices: vec![],
+    };
+    let s = trace(&empty, &[], &rays);
+    assert_eq!(
+        (s.hit_count, s.total_steps, s.total_intersections),
+        (0, 0, 0)
+    );
     // Out-of-range child and primitive indices are skipped.
     let bad = Bvh {
         nodes: vec![Node::inner(bounds_of(&tris, &[0, 1, 2]), 7)],
