@@ -2,6 +2,7 @@
 //! SCENE is a path (.obj / .obj.gz) or `gen:...`. Boxes and centres are computed once (not timed);
 //! each builder runs `runs` times; one JSON line per builder with median/min ms and the eq. 4 SAH
 //! cost (c_T = 3, c_I = 2) of the built tree.
+use bvhlab_build::binned_sah::CentroidTermination;
 use bvhlab_build::{binned_sah, spatial_median, sweep_sah, TopDownConfig};
 use bvhlab_bvh::{metrics, validate, Bvh};
 use std::time::Instant;
@@ -33,6 +34,11 @@ fn main() {
     let builders: Vec<(&str, Builder)> = vec![
         ("spatial-median", Box::new(|| spatial_median::build(&boxes, &centers, &cfg))),
         ("binned-sah", Box::new(|| binned_sah::build(&boxes, &centers, 16, &cfg))),
+        // The thesis' literal centroid termination (any dimension below 1e-7), for its BIN column.
+        (
+            "binned-sah-any-axis",
+            Box::new(|| binned_sah::build_with_termination(&boxes, &centers, 16, &cfg, CentroidTermination::AnyAxis)),
+        ),
         ("sweep-sah", Box::new(|| sweep_sah::build(&boxes, &centers, &cfg))),
     ];
     for (name, build) in &builders {

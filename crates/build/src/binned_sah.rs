@@ -7,23 +7,45 @@ use crate::primref::{make_refs, object_median, partition, PrimRef};
 use crate::topdown::{build_nodes, Range};
 use crate::TopDownConfig;
 use bvhlab_bvh::{Aabb, Bvh, Vec3};
+use serde::{Deserialize, Serialize};
 
 /// Eq. 6's epsilon: shifts every centroid slightly left so the right boundary needs no special case.
 const BIN_EPSILON: f32 = 1e-5;
-/// Thesis 3.1.1: stop when the centroid bounds become "too small" (extent below 1e-7).
-///
-/// The thesis applies it when *any* dimension falls below the constant. Read literally, that would
-/// turn every node of a flat scene (a floor, a wall: one axis of zero extent) into a leaf at the
-/// root. We test the extent of the chosen (largest) centroid axis instead, i.e. stop only when the
-/// centroids are too close in *every* dimension, which is what "centroid bounds too small" (Wald
-/// 2007) means and what the criterion guards against: a split axis that cannot separate centroids.
+/// Thesis 3.1.1: stop when the centroid bounds become "too small" (extent below 1e-7); see
+/// [`CentroidTermination`] for which extent is tested.
 const MIN_CENTROID_EXTENT: f32 = 1e-7;
+
+/// Which centroid-bounds extent the "centroid bounds too small" termination (Wald 2007, thesis
+/// 3.1.1) looks at.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum CentroidTermination {
+    /// Stop when the extent along the chosen (largest) centroid axis is below 1e-7, i.e. when the
+    /// centroids are that close in *every* dimension and no plane can separate them. The default.
+    #[default]
+    SplitAxis,
+    /// The thesis' literal wording: stop when the extent along *any* dimension is below 1e-7.
+    /// Every node whose centroids lie in one axis-aligned plane (a floor, a wall, a flat scene at
+    /// the root) then becomes a leaf however many primitives it holds; this raises the SAH cost of
+    /// architectural scenes. Kept to reproduce the thesis' BIN column.
+    AnyAxis,
+}
 
 /// `bins` is `k` of the thesis (16 in its tables); values below 2 are treated as 2.
 pub fn build(boxes: &[Aabb], centers: &[Vec3], bins: u32, cfg: &TopDownConfig) -> Bvh {
+    build_with_termination(boxes, centers, bins, cfg, CentroidTermination::default())
+}
+
+/// [`build`] with an explicit choice of the centroid-bounds termination rule.
+pub fn build_with_termination(
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    bins: u32,
+    cfg: &TopDownConfig,
+    term: CentroidTermination,
+) -> Bvh {
     let (mut refs, root) = make_refs(boxes, centers);
     let mut binner = Binner::new(bins.max(2) as usize);
-    let nodes = build_nodes(refs.len(), root, |r| split(&mut refs, r, &mut binner, cfg));
+    let nodes = build_nodes(refs.len(), root, |r| split(&mut refs, r, &mut binner, cfg, term));
     Bvh { nodes, prim_indices: refs.iter().map(|p| p.idx).collect() }
 }
 
@@ -101,7 +123,13 @@ impl Binner {
 }
 
 /// The split decision for one node: `None` makes a leaf.
-fn split(refs: &mut [PrimRef], r: &Range, binner: &mut Binner, cfg: &TopDownConfig) -> Option<(Range, Range)> {
+fn split(
+    refs: &mut [PrimRef],
+    r: &Range,
+    binner: &mut Binner,
+    cfg: &TopDownConfig,
+    term: CentroidTermination,
+) -> Option<(Range, Range)> {
     let n = r.len();
     if n <= cfg.max_leaf() {
         return None;
@@ -111,8 +139,16 @@ fn split(refs: &mut [PrimRef], r: &Range, binner: &mut Binner, cfg: &TopDownConf
     let (cb_min, cb_max) = (r.cbounds.min[axis], r.cbounds.max[axis]);
     let extent = cb_max - cb_min;
     // `!(>=)` also catches NaN extents.
-    if !(extent >= MIN_CENTROID_EXTENT) {
-        return forced.then(|| object_median(refs, r, axis));
+    let tiny = !(extent >= MIN_CENTROID_EXTENT);
+    let stop = tiny
+        || (term == CentroidTermination::AnyAxis
+            && !((r.cbounds.max - r.cbounds.min).min_element() >= MIN_CENTROID_EXTENT));
+    if stop && !forced {
+        return None;
+    }
+    if tiny {
+        // leaf = 1 disables early termination; binning cannot separate these centroids.
+        return Some(object_median(refs, r, axis));
     }
     let k = binner.k;
     let k0 = k as f32 * (1.0 - BIN_EPSILON) / extent;

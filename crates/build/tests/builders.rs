@@ -175,3 +175,22 @@ fn non_finite_boxes_do_not_panic_or_loop() {
         }
     }
 }
+
+#[test]
+fn centroid_termination_rules_differ_on_flat_input() {
+    use binned_sah::{build_with_termination, CentroidTermination::*};
+    let boxes = flat_boxes(2000, 13);
+    let centers = centers_of(&boxes);
+    let cfg = TopDownConfig::default();
+    // The thesis' literal rule ("any dimension" below 1e-7) stops at the root of a flat scene ...
+    let literal = build_with_termination(&boxes, &centers, 16, &cfg, AnyAxis);
+    assert_eq!(literal.nodes.len(), 1);
+    // ... the default (split axis) rule builds a real tree.
+    let default = binned_sah::build(&boxes, &centers, 16, &cfg);
+    assert!(default.nodes.len() > 1000 && max_leaf_size(&default) < 20);
+    // leaf = 1 overrides either rule.
+    let forced = TopDownConfig { leaf: 1, ..cfg };
+    let b = build_with_termination(&boxes, &centers, 16, &forced, AnyAxis);
+    assert!(validate(&b, &boxes).is_ok());
+    assert_eq!(max_leaf_size(&b), 1);
+}
