@@ -32,14 +32,31 @@ fn main() {
     let cfg = TopDownConfig::default();
     type Builder<'a> = Box<dyn Fn() -> Bvh + 'a>;
     let builders: Vec<(&str, Builder)> = vec![
-        ("spatial-median", Box::new(|| spatial_median::build(&boxes, &centers, &cfg))),
-        ("binned-sah", Box::new(|| binned_sah::build(&boxes, &centers, 16, &cfg))),
+        (
+            "spatial-median",
+            Box::new(|| spatial_median::build(&boxes, &centers, &cfg)),
+        ),
+        (
+            "binned-sah",
+            Box::new(|| binned_sah::build(&boxes, &centers, 16, &cfg)),
+        ),
         // The thesis' literal centroid termination (any dimension below 1e-7), for its BIN column.
         (
             "binned-sah-any-axis",
-            Box::new(|| binned_sah::build_with_termination(&boxes, &centers, 16, &cfg, CentroidTermination::AnyAxis)),
+            Box::new(|| {
+                binned_sah::build_with_termination(
+                    &boxes,
+                    &centers,
+                    16,
+                    &cfg,
+                    CentroidTermination::AnyAxis,
+                )
+            }),
         ),
-        ("sweep-sah", Box::new(|| sweep_sah::build(&boxes, &centers, &cfg))),
+        (
+            "sweep-sah",
+            Box::new(|| sweep_sah::build(&boxes, &centers, &cfg)),
+        ),
     ];
     for (name, build) in &builders {
         let mut ms = Vec::with_capacity(runs);

@@ -45,8 +45,13 @@ pub fn build_with_termination(
 ) -> Bvh {
     let (mut refs, root) = make_refs(boxes, centers);
     let mut binner = Binner::new(bins.max(2) as usize);
-    let nodes = build_nodes(refs.len(), root, |r| split(&mut refs, r, &mut binner, cfg, term));
-    Bvh { nodes, prim_indices: refs.iter().map(|p| p.idx).collect() }
+    let nodes = build_nodes(refs.len(), root, |r| {
+        split(&mut refs, r, &mut binner, cfg, term)
+    });
+    Bvh {
+        nodes,
+        prim_indices: refs.iter().map(|p| p.idx).collect(),
+    }
 }
 
 /// Bin storage, allocated once per build and reused by every node.
@@ -78,13 +83,25 @@ fn bin_of(c: f32, cb_min: f32, k0: f32, k: usize) -> usize {
 
 impl Binner {
     fn new(k: usize) -> Self {
-        Binner { k, count: vec![0; k], bounds: vec![BoxA::EMPTY; k], left_area: vec![0.0; k], left_count: vec![0; k] }
+        Binner {
+            k,
+            count: vec![0; k],
+            bounds: vec![BoxA::EMPTY; k],
+            left_area: vec![0.0; k],
+            left_count: vec![0; k],
+        }
     }
 
     /// Bins `prims` along `axis` and sweeps twice (thesis 3.1.1). Returns the cheapest candidate
     /// that puts primitives on both sides, or `None` if all centroids landed in one bin.
     /// Ties go to the lowest plane.
-    fn find_split(&mut self, prims: &[PrimRef], axis: usize, cb_min: f32, k0: f32) -> Option<BinSplit> {
+    fn find_split(
+        &mut self,
+        prims: &[PrimRef],
+        axis: usize,
+        cb_min: f32,
+        k0: f32,
+    ) -> Option<BinSplit> {
         let k = self.k;
         self.count.fill(0);
         self.bounds.fill(BoxA::EMPTY);
@@ -114,8 +131,12 @@ impl Binner {
                 continue;
             }
             let cost = self.left_area[i] * n_l as f32 + acc.half_area() * n_r as f32;
-            if best.map_or(true, |b| cost <= b.cost) {
-                best = Some(BinSplit { axis, last_left_bin: i, cost });
+            if best.is_none_or(|b| cost <= b.cost) {
+                best = Some(BinSplit {
+                    axis,
+                    last_left_bin: i,
+                    cost,
+                });
             }
         }
         best
@@ -138,11 +159,11 @@ fn split(
     let axis = r.cbounds.largest_axis();
     let (cb_min, cb_max) = (r.cbounds.min[axis], r.cbounds.max[axis]);
     let extent = cb_max - cb_min;
-    // `!(>=)` also catches NaN extents.
-    let tiny = !(extent >= MIN_CENTROID_EXTENT);
-    let stop = tiny
-        || (term == CentroidTermination::AnyAxis
-            && !((r.cbounds.max - r.cbounds.min).min_element() >= MIN_CENTROID_EXTENT));
+    // `ge` is false for NaN extents too, so those count as too small.
+    let tiny = !extent.ge(&MIN_CENTROID_EXTENT);
+    let min_extent = (r.cbounds.max - r.cbounds.min).min_element();
+    let stop =
+        tiny || (term == CentroidTermination::AnyAxis && !min_extent.ge(&MIN_CENTROID_EXTENT));
     if stop && !forced {
         return None;
     }

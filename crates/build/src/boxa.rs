@@ -9,7 +9,10 @@ pub(crate) struct BoxA {
 }
 
 impl BoxA {
-    pub const EMPTY: BoxA = BoxA { min: Vec3A::splat(f32::INFINITY), max: Vec3A::splat(f32::NEG_INFINITY) };
+    pub const EMPTY: BoxA = BoxA {
+        min: Vec3A::splat(f32::INFINITY),
+        max: Vec3A::splat(f32::NEG_INFINITY),
+    };
 
     #[inline(always)]
     pub fn grow(&mut self, min: Vec3A, max: Vec3A) {
@@ -23,7 +26,10 @@ impl BoxA {
     }
     #[inline(always)]
     pub fn union(&self, o: &BoxA) -> BoxA {
-        BoxA { min: self.min.min(o.min), max: self.max.max(o.max) }
+        BoxA {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+        }
     }
     /// Half the surface area; 0 for empty boxes. SAH comparisons are scale-invariant, so the builders
     /// use half areas throughout and save a multiply per candidate.
@@ -39,6 +45,9 @@ impl BoxA {
     }
     #[inline]
     pub fn to_aabb(self) -> Aabb {
-        Aabb { min: Vec3::from(self.min), max: Vec3::from(self.max) }
+        Aabb {
+            min: Vec3::from(self.min),
+            max: Vec3::from(self.max),
+        }
     }
 }

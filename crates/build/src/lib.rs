@@ -28,7 +28,10 @@ pub struct TopDownConfig {
 
 impl Default for TopDownConfig {
     fn default() -> Self {
-        Self { leaf: 2, cost: CostParams::default() }
+        Self {
+            leaf: 2,
+            cost: CostParams::default(),
+        }
     }
 }
 

@@ -16,7 +16,11 @@ pub(crate) struct PrimRef {
 
 /// References in input order plus the root range (bounds of all boxes, bounds of all centres).
 pub(crate) fn make_refs(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimRef>, Range) {
-    assert_eq!(boxes.len(), centers.len(), "builders need one centre per primitive box");
+    assert_eq!(
+        boxes.len(),
+        centers.len(),
+        "builders need one centre per primitive box"
+    );
     assert!(boxes.len() < u32::MAX as usize, "primitive indices are u32");
     let mut bounds = BoxA::EMPTY;
     let mut cbounds = BoxA::EMPTY;
@@ -25,20 +29,37 @@ pub(crate) fn make_refs(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimRef>, Rang
         .zip(centers)
         .enumerate()
         .map(|(i, (b, &c))| {
-            let r = PrimRef { min: b.min.into(), max: b.max.into(), c, idx: i as u32 };
+            let r = PrimRef {
+                min: b.min.into(),
+                max: b.max.into(),
+                c,
+                idx: i as u32,
+            };
             bounds.grow(r.min, r.max);
             cbounds.grow_point(c.into());
             r
         })
         .collect();
-    (refs, Range { begin: 0, end: boxes.len(), bounds, cbounds })
+    (
+        refs,
+        Range {
+            begin: 0,
+            end: boxes.len(),
+            bounds,
+            cbounds,
+        },
+    )
 }
 
 /// Hoare-style in-place partition of `refs[r.begin..r.end]` (Wald 2007 via thesis 3.1.1): elements
 /// with `is_left` first. Every element is classified exactly once, and the children's bounds and
 /// centroid bounds are gathered on the way. Returns the two child ranges; either may be empty.
 #[inline]
-pub(crate) fn partition(refs: &mut [PrimRef], r: &Range, is_left: impl Fn(&PrimRef) -> bool) -> (Range, Range) {
+pub(crate) fn partition(
+    refs: &mut [PrimRef],
+    r: &Range,
+    is_left: impl Fn(&PrimRef) -> bool,
+) -> (Range, Range) {
     let s = &mut refs[r.begin..r.end];
     let (mut lb, mut lcb, mut rb, mut rcb) = (BoxA::EMPTY, BoxA::EMPTY, BoxA::EMPTY, BoxA::EMPTY);
     let mut i = 0;
@@ -68,8 +89,18 @@ pub(crate) fn partition(refs: &mut [PrimRef], r: &Range, is_left: impl Fn(&PrimR
     }
     let mid = r.begin + i;
     (
-        Range { begin: r.begin, end: mid, bounds: lb, cbounds: lcb },
-        Range { begin: mid, end: r.end, bounds: rb, cbounds: rcb },
+        Range {
+            begin: r.begin,
+            end: mid,
+            bounds: lb,
+            cbounds: lcb,
+        },
+        Range {
+            begin: mid,
+            end: r.end,
+            bounds: rb,
+            cbounds: rcb,
+        },
     )
 }
 
@@ -80,7 +111,9 @@ pub(crate) fn object_median(refs: &mut [PrimRef], r: &Range, axis: usize) -> (Ra
     let s = &mut refs[r.begin..r.end];
     debug_assert!(s.len() >= 2);
     let m = s.len() / 2;
-    s.select_nth_unstable_by(m, |a, b| a.c[axis].total_cmp(&b.c[axis]).then(a.idx.cmp(&b.idx)));
+    s.select_nth_unstable_by(m, |a, b| {
+        a.c[axis].total_cmp(&b.c[axis]).then(a.idx.cmp(&b.idx))
+    });
     let bounds = |part: &[PrimRef]| {
         let (mut b, mut cb) = (BoxA::EMPTY, BoxA::EMPTY);
         for p in part {
@@ -93,7 +126,17 @@ pub(crate) fn object_median(refs: &mut [PrimRef], r: &Range, axis: usize) -> (Ra
     let (rb, rcb) = bounds(&s[m..]);
     let mid = r.begin + m;
     (
-        Range { begin: r.begin, end: mid, bounds: lb, cbounds: lcb },
-        Range { begin: mid, end: r.end, bounds: rb, cbounds: rcb },
+        Range {
+            begin: r.begin,
+            end: mid,
+            bounds: lb,
+            cbounds: lcb,
+        },
+        Range {
+            begin: mid,
+            end: r.end,
+            bounds: rb,
+            cbounds: rcb,
+        },
     )
 }

@@ -16,7 +16,10 @@ pub fn build(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> Bvh {
     let (mut refs, root) = make_refs(boxes, centers);
     let max_leaf = cfg.max_leaf();
     let nodes = build_nodes(refs.len(), root, |r| split(&mut refs, r, max_leaf));
-    Bvh { nodes, prim_indices: refs.iter().map(|p| p.idx).collect() }
+    Bvh {
+        nodes,
+        prim_indices: refs.iter().map(|p| p.idx).collect(),
+    }
 }
 
 /// The split decision for one node: `None` makes a leaf (primitive threshold only, no SAH test).

@@ -53,7 +53,11 @@ struct Sweeper {
 }
 
 pub fn build(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> Bvh {
-    assert_eq!(boxes.len(), centers.len(), "builders need one centre per primitive box");
+    assert_eq!(
+        boxes.len(),
+        centers.len(),
+        "builders need one centre per primitive box"
+    );
     assert!(boxes.len() < u32::MAX as usize, "primitive indices are u32");
     let n = boxes.len();
     if n == 0 {
@@ -64,10 +68,18 @@ pub fn build(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> Bvh {
     for b in boxes {
         bounds.grow(b.min.into(), b.max.into());
     }
-    let root = Range { begin: 0, end: n, bounds, cbounds: BoxA::EMPTY };
+    let root = Range {
+        begin: 0,
+        end: n,
+        bounds,
+        cbounds: BoxA::EMPTY,
+    };
     let nodes = build_nodes(n, root, |r| s.split(r, cfg));
     // All three arrays hold the same primitive set in every node range; take the x-sorted one.
-    Bvh { nodes, prim_indices: s.sorted[0].iter().map(|p| p.idx).collect() }
+    Bvh {
+        nodes,
+        prim_indices: s.sorted[0].iter().map(|p| p.idx).collect(),
+    }
 }
 
 /// Sort key (centroid, index) as one u64: the f32 bits are mapped to an order-preserving u32
@@ -75,7 +87,11 @@ pub fn build(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> Bvh {
 #[inline]
 fn sort_key(c: f32, idx: u32) -> u64 {
     let b = c.to_bits();
-    let ordered = if b & 0x8000_0000 != 0 { !b } else { b | 0x8000_0000 };
+    let ordered = if b & 0x8000_0000 != 0 {
+        !b
+    } else {
+        b | 0x8000_0000
+    };
     ((ordered as u64) << 32) | idx as u64
 }
 
@@ -85,17 +101,32 @@ impl Sweeper {
         let mut keys: Vec<u64> = Vec::with_capacity(n);
         let sorted = std::array::from_fn(|axis| {
             keys.clear();
-            keys.extend(centers.iter().enumerate().map(|(i, c)| sort_key(c[axis], i as u32)));
+            keys.extend(
+                centers
+                    .iter()
+                    .enumerate()
+                    .map(|(i, c)| sort_key(c[axis], i as u32)),
+            );
             keys.sort_unstable();
             keys.iter()
                 .map(|&k| {
                     let i = k as u32;
                     let b = &boxes[i as usize];
-                    SweepRef { min: b.min, idx: i, max: b.max, _pad: 0 }
+                    SweepRef {
+                        min: b.min,
+                        idx: i,
+                        max: b.max,
+                        _pad: 0,
+                    }
                 })
                 .collect()
         });
-        Sweeper { sorted, right_area: vec![0.0; n], tmp: Vec::with_capacity(n), is_left: vec![false; n] }
+        Sweeper {
+            sorted,
+            right_area: vec![0.0; n],
+            tmp: Vec::with_capacity(n),
+            is_left: vec![false; n],
+        }
     }
 
     /// Evaluates all `n - 1` candidates on all three axes (thesis 3.3.1 with eq. 2 costs). Ties go
@@ -103,7 +134,11 @@ impl Sweeper {
     fn find_split(&mut self, r: &Range) -> SweepSplit {
         let n = r.len();
         // Fallback if every cost is NaN (non-finite input): a valid median split on x.
-        let mut best = SweepSplit { axis: 0, n_left: n / 2, cost: f32::INFINITY };
+        let mut best = SweepSplit {
+            axis: 0,
+            n_left: n / 2,
+            cost: f32::INFINITY,
+        };
         for axis in 0..3 {
             let a = &self.sorted[axis][r.begin..r.end];
             let right_area = &mut self.right_area[..n];
@@ -118,7 +153,11 @@ impl Sweeper {
                 let n_l = (i + 1) as f32;
                 let cost = acc.half_area() * n_l + right_area[i + 1] * (n as f32 - n_l);
                 if cost < best.cost {
-                    best = SweepSplit { axis, n_left: i + 1, cost };
+                    best = SweepSplit {
+                        axis,
+                        n_left: i + 1,
+                        cost,
+                    };
                 }
             }
         }
@@ -166,8 +205,18 @@ impl Sweeper {
             arr[l..].copy_from_slice(&self.tmp);
         }
         Some((
-            Range { begin: r.begin, end: mid, bounds: lb, cbounds: BoxA::EMPTY },
-            Range { begin: mid, end: r.end, bounds: rb, cbounds: BoxA::EMPTY },
+            Range {
+                begin: r.begin,
+                end: mid,
+                bounds: lb,
+                cbounds: BoxA::EMPTY,
+            },
+            Range {
+                begin: mid,
+                end: r.end,
+                bounds: rb,
+                cbounds: BoxA::EMPTY,
+            },
         ))
     }
 }

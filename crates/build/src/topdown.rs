@@ -23,19 +23,29 @@ impl Range {
 /// `[begin, mid)` and `[mid, end)` after it has partitioned its primitive arrays accordingly.
 /// Layout (bvhlab_bvh::Node docs): root at 0, the two children of a node are allocated together as
 /// an adjacent pair (left, right); left subtrees are expanded first (depth-first pair order).
-pub(crate) fn build_nodes(n: usize, root: Range, mut decide: impl FnMut(&Range) -> Option<(Range, Range)>) -> Vec<Node> {
+pub(crate) fn build_nodes(
+    n: usize,
+    root: Range,
+    mut decide: impl FnMut(&Range) -> Option<(Range, Range)>,
+) -> Vec<Node> {
     let mut nodes = Vec::with_capacity(2 * n.max(1) - 1);
     if n == 0 {
         return nodes;
     }
-    let placeholder = Node { bounds: root.bounds.to_aabb(), first: 0, count: 0 };
+    let placeholder = Node {
+        bounds: root.bounds.to_aabb(),
+        first: 0,
+        count: 0,
+    };
     nodes.push(placeholder);
     let mut stack: Vec<(usize, Range)> = Vec::with_capacity(128);
     stack.push((0, root));
     while let Some((ni, r)) = stack.pop() {
         match decide(&r) {
             Some((left, right)) => {
-                debug_assert!(left.begin == r.begin && left.end == right.begin && right.end == r.end);
+                debug_assert!(
+                    left.begin == r.begin && left.end == right.begin && right.end == r.end
+                );
                 debug_assert!(left.len() > 0 && right.len() > 0);
                 let li = nodes.len();
                 nodes.push(placeholder);

@@ -10,10 +10,14 @@ fn arb_box() -> impl Strategy<Value = Aabb> {
     // Coordinates on a coarse grid so coincident centres and zero extents are common.
     let coord = (-4i32..4).prop_map(|v| v as f32 * 0.25);
     let ext = prop_oneof![Just(0.0f32), (0i32..4).prop_map(|v| v as f32 * 0.5)];
-    ((coord.clone(), coord.clone(), coord), (ext.clone(), ext.clone(), ext)).prop_map(|((x, y, z), (a, b, c))| {
-        let p = Vec3::new(x, y, z);
-        Aabb::new(p, p + Vec3::new(a, b, c))
-    })
+    (
+        (coord.clone(), coord.clone(), coord),
+        (ext.clone(), ext.clone(), ext),
+    )
+        .prop_map(|((x, y, z), (a, b, c))| {
+            let p = Vec3::new(x, y, z);
+            Aabb::new(p, p + Vec3::new(a, b, c))
+        })
 }
 
 proptest! {

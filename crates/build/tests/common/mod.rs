@@ -9,8 +9,11 @@ fn binned16(b: &[Aabb], c: &[Vec3], cfg: &TopDownConfig) -> Bvh {
     binned_sah::build(b, c, 16, cfg)
 }
 
-pub const BUILDERS: [(&str, BuildFn); 3] =
-    [("spatial-median", spatial_median::build), ("binned-sah", binned16), ("sweep-sah", sweep_sah::build)];
+pub const BUILDERS: [(&str, BuildFn); 3] = [
+    ("spatial-median", spatial_median::build),
+    ("binned-sah", binned16),
+    ("sweep-sah", sweep_sah::build),
+];
 
 /// SplitMix64: a tiny deterministic generator, so the tests need no RNG crate.
 pub struct Rng(pub u64);
@@ -46,10 +49,12 @@ pub fn random_boxes(n: usize, size: f32, seed: u64) -> Vec<Aabb> {
 
 /// Boxes of different sizes that all share one centre.
 pub fn equal_centroid_boxes(n: usize) -> Vec<Aabb> {
-    (0..n).map(|i| {
-        let h = Vec3::splat(0.01 + i as f32 * 0.001);
-        Aabb::new(Vec3::splat(0.5) - h, Vec3::splat(0.5) + h)
-    }).collect()
+    (0..n)
+        .map(|i| {
+            let h = Vec3::splat(0.01 + i as f32 * 0.001);
+            Aabb::new(Vec3::splat(0.5) - h, Vec3::splat(0.5) + h)
+        })
+        .collect()
 }
 
 /// Boxes of triangles lying in the plane z = 0.25 (zero extent on z).
@@ -75,11 +80,20 @@ pub fn sah(bvh: &Bvh, c_t: f64, c_i: f64) -> f64 {
     let mut s = 0.0;
     for n in &bvh.nodes {
         let a = n.bounds.area_f64() / root;
-        s += if n.is_leaf() { c_i * a * n.count as f64 } else { c_t * a };
+        s += if n.is_leaf() {
+            c_i * a * n.count as f64
+        } else {
+            c_t * a
+        };
     }
     s
 }
 
 pub fn max_leaf_size(bvh: &Bvh) -> u32 {
-    bvh.nodes.iter().filter(|n| n.is_leaf()).map(|n| n.count).max().unwrap_or(0)
+    bvh.nodes
+        .iter()
+        .filter(|n| n.is_leaf())
+        .map(|n| n.count)
+        .max()
+        .unwrap_or(0)
 }
