@@ -33,12 +33,12 @@ if [[ -n "$embree" ]]; then
   emb_sah=$(field "$medium" sah_cost)
 fi
 
-printf '\n%-15s %12s %14s %8s %10s %11s\n' builder median_ms embree_bin_ms ratio sah_cost embree_sah
+printf '\n%-20s %12s %14s %8s %10s %11s\n' builder median_ms embree_bin_ms ratio sah_cost embree_sah
 while IFS= read -r line; do
   name=$(sed -n 's/.*"builder":"\([^"]*\)".*/\1/p' <<<"$line")
   ms=$(field "$line" build_ms_median)
   sah=$(field "$line" sah_cost)
   ratio=-
   [[ -n "$emb_ms" ]] && ratio=$(awk -v a="$ms" -v b="$emb_ms" 'BEGIN { printf "%.2f", a / b }')
-  printf '%-15s %12s %14s %8s %10s %11s\n' "$name" "$ms" "${emb_ms:--}" "$ratio" "$sah" "${emb_sah:--}"
+  printf '%-20s %12s %14s %8s %10s %11s\n' "$name" "$ms" "${emb_ms:--}" "$ratio" "$sah" "${emb_sah:--}"
 done <<<"$ours"
