@@ -2,6 +2,22 @@
 //! files, and the flat result rows the report and `eval --json` are made from. The only crate that
 //! knows about hashing, caching and files (besides scene loading).
 
+pub mod codec;
+pub mod error;
+pub mod experiment;
+pub mod key;
+pub mod registry;
 pub mod row;
+pub mod run;
+pub mod stages;
+pub mod store;
+pub mod sweep;
 
+pub use error::{Error, Result};
+pub use experiment::Experiment;
+pub use key::Key;
+pub use registry::Registry;
 pub use row::ResultRow;
+pub use run::{with_threads, Counts, Runner};
+pub use stages::{ChainSpec, RaySpec, SceneSource, Versions};
+pub use store::Store;

@@ -1,0 +1,113 @@
+//! Artifact encoding: the only place bincode is used (DEVELOPERS.md, design card).
+//!
+//! Layout: 8-byte magic, u32 format version, u32 reserved, u64 payload length, 32-byte blake3 of
+//! the payload, payload (bincode 2, standard config, through serde). `decode` verifies everything
+//! before deserializing, so a truncated or bit-flipped artifact is reported, never used.
+use serde::{de::DeserializeOwned, Serialize};
+
+pub const MAGIC: [u8; 8] = *b"BVHLAB\x00A";
+/// Bump when the header or bincode configuration changes.
+pub const FORMAT_VERSION: u32 = 1;
+pub const HEADER_LEN: usize = 8 + 4 + 4 + 8 + 32;
+
+fn config() -> bincode::config::Configuration {
+    bincode::config::standard()
+}
+
+pub fn encode<T: Serialize>(value: &T) -> Result<Vec<u8>, String> {
+    let payload = bincode::serde::encode_to_vec(value, config()).map_err(|e| format!("encode: {e}"))?;
+    let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes());
+    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    out.extend_from_slice(blake3::hash(&payload).as_bytes());
+    out.extend_from_slice(&payload);
+    Ok(out)
+}
+
+/// Checks header, length and checksum; returns the payload slice.
+pub fn verify(bytes: &[u8]) -> Result<&[u8], String> {
+    if bytes.len() < HEADER_LEN {
+        return Err(format!("truncated: {} bytes, header needs {HEADER_LEN}", bytes.len()));
+    }
+    if bytes[0..8] != MAGIC {
+        return Err("bad magic (not a bvhlab artifact)".into());
+    }
+    let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
+    if version != FORMAT_VERSION {
+        return Err(format!("format version {version}, expected {FORMAT_VERSION}"));
+    }
+    let len = u64::from_le_bytes(bytes[16..24].try_into().unwrap());
+    let payload = &bytes[HEADER_LEN..];
+    if payload.len() as u64 != len {
+        return Err(format!("payload is {} bytes, header says {len}", payload.len()));
+    }
+    if blake3::hash(payload).as_bytes() != &bytes[24..56] {
+        return Err("blake3 checksum mismatch".into());
+    }
+    Ok(payload)
+}
+
+pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
+    let payload = verify(bytes)?;
+    let (value, used): (T, usize) =
+        bincode::serde::decode_from_slice(payload, config()).map_err(|e| format!("decode: {e}"))?;
+    if used != payload.len() {
+        return Err(format!("decode: {} trailing bytes", payload.len() - used));
+    }
+    Ok(value)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+    struct T {
+        a: u64,
+        b: Vec<f32>,
+        s: String,
+    }
+
+    fn sample() -> T {
+        T { a: 7, b: vec![1.5, -0.0, f32::INFINITY], s: "hi".into() }
+    }
+
+    #[test]
+    fn round_trip() {
+        let bytes = encode(&sample()).unwrap();
+        let back: T = decode(&bytes).unwrap();
+        assert_eq!(back, sample());
+    }
+
+    #[test]
+    fn every_flipped_byte_is_detected() {
+        let bytes = encode(&sample()).unwrap();
+        for i in 0..bytes.len() {
+            let mut b = bytes.clone();
+            b[i] ^= 0x40;
+            // Byte 12..16 is reserved and not checked; everything else must be.
+            if (12..16).contains(&i) {
+                continue;
+            }
+            assert!(decode::<T>(&b).is_err(), "flip at {i} not detected");
+        }
+    }
+
+    #[test]
+    fn truncation_and_extension_are_detected() {
+        let bytes = encode(&sample()).unwrap();
+        assert!(decode::<T>(&bytes[..bytes.len() - 1]).is_err());
+        assert!(decode::<T>(&bytes[..10]).is_err());
+        let mut longer = bytes.clone();
+        longer.push(0);
+        assert!(decode::<T>(&longer).is_err());
+    }
+
+    #[test]
+    fn wrong_type_is_an_error_not_a_panic() {
+        let bytes = encode(&"a string".to_string()).unwrap();
+        assert!(decode::<T>(&bytes).is_err());
+    }
+}

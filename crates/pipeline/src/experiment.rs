@@ -1,0 +1,342 @@
+//! Experiment files (TOML): scenes x chains (parameter grids, cartesian product) x ray sets.
+//! The format is documented at the top of experiments/quick.toml.
+use crate::error::{Error, Result};
+use crate::registry::Registry;
+use crate::stages::{check_compact, ChainSpec, RaySpec, SceneSource};
+use bvhlab_bvh::CostParams;
+use bvhlab_geom::Vec3;
+use bvhlab_trace::Camera;
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use toml::Spanned;
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileToml {
+    name: String,
+    #[serde(default)]
+    #[allow(dead_code)]
+    description: Option<String>,
+    scenes: Vec<Spanned<String>>,
+    repeat: Option<u32>,
+    cost: Option<CostToml>,
+    chain: Vec<Spanned<toml::Table>>,
+    rays: Option<RaysToml>,
+    camera: Option<CameraToml>,
+    #[serde(default)]
+    cameras: BTreeMap<String, CameraToml>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CostToml {
+    c_t: Option<f32>,
+    c_i: Option<f32>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RaysToml {
+    sets: Vec<Spanned<String>>,
+}
+
+#[derive(Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CameraToml {
+    eye: [f32; 3],
+    target: [f32; 3],
+    up: Option<[f32; 3]>,
+    fov: Option<f32>,
+}
+
+impl CameraToml {
+    fn camera(&self) -> Camera {
+        Camera {
+            eye: Vec3::from(self.eye),
+            target: Vec3::from(self.target),
+            up: Vec3::from(self.up.unwrap_or([0.0, 1.0, 0.0])),
+            fov_y_deg: self.fov.unwrap_or(45.0),
+        }
+    }
+}
+
+/// One `[[chain]]` table expanded into its grid points.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChainPoint {
+    pub build: String,
+    pub compact: String,
+    pub params: BTreeMap<String, String>,
+}
+
+#[derive(Clone, Debug)]
+pub struct Experiment {
+    pub name: String,
+    pub path: PathBuf,
+    /// (spec as written, resolved source).
+    pub scenes: Vec<(String, SceneSource)>,
+    pub repeat: u32,
+    pub cost: CostParams,
+    pub points: Vec<ChainPoint>,
+    /// Empty: no measure stage.
+    pub rays: Vec<RaySpec>,
+    pub camera: Option<Camera>,
+    /// Per-scene camera overrides, keyed by the scene spec as written.
+    pub cameras: BTreeMap<String, Camera>,
+}
+
+fn line_col(src: &str, offset: usize) -> (usize, usize) {
+    let before = &src[..offset.min(src.len())];
+    let line = before.matches('\n').count() + 1;
+    let col = before.len() - before.rfind('\n').map(|i| i + 1).unwrap_or(0) + 1;
+    (line, col)
+}
+
+fn value_strings(key: &str, v: &toml::Value) -> std::result::Result<Vec<String>, String> {
+    let scalar = |v: &toml::Value| match v {
+        toml::Value::String(s) => Ok(s.clone()),
+        toml::Value::Integer(i) => Ok(i.to_string()),
+        toml::Value::Float(f) => Ok(f.to_string()),
+        toml::Value::Boolean(b) => Ok(b.to_string()),
+        _ => Err(format!("`{key}` must be a value or an array of values")),
+    };
+    match v {
+        toml::Value::Array(a) if a.is_empty() => Err(format!("`{key}` is an empty array")),
+        toml::Value::Array(a) => a.iter().map(scalar).collect(),
+        v => scalar(v).map(|s| vec![s]),
+    }
+}
+
+/// Resolves a relative scene path: against the working directory if it exists there, else
+/// against the experiment file's directory, else its parent (the repository root for files in
+/// `experiments/`).
+fn resolve_scene_path(spec: &str, exp_path: &Path) -> Option<PathBuf> {
+    let p = PathBuf::from(spec);
+    if p.is_absolute() || p.exists() {
+        return p.exists().then_some(p);
+    }
+    let dir = exp_path.parent().unwrap_or(Path::new("."));
+    [dir.join(&p), dir.join("..").join(&p)].into_iter().find(|c| c.exists())
+}
+
+impl Experiment {
+    pub fn load(path: &Path, registry: &Registry) -> Result<Experiment> {
+        let src = std::fs::read_to_string(path)
+            .map_err(|e| Error::input(format!("{}: cannot read experiment: {e}", path.display())))?;
+        Self::parse(&src, path, registry)
+    }
+
+    pub fn parse(src: &str, path: &Path, registry: &Registry) -> Result<Experiment> {
+        let at = |offset: usize, msg: String| {
+            let (l, c) = line_col(src, offset);
+            Error::input(format!("{}:{l}:{c}: {msg}", path.display()))
+        };
+        let f: FileToml = toml::from_str(src).map_err(|e| {
+            let msg = e.message().trim().to_string();
+            match e.span() {
+                Some(s) => at(s.start, msg),
+                None => Error::input(format!("{}: {msg}", path.display())),
+            }
+        })?;
+        if f.name.is_empty() || f.name.contains(['/', '\\']) || f.name.starts_with('.') {
+            return Err(Error::input(format!("{}: `name` must be a plain directory name", path.display())));
+        }
+        if f.scenes.is_empty() {
+            return Err(Error::input(format!("{}: `scenes` is empty", path.display())));
+        }
+        if f.chain.is_empty() {
+            return Err(Error::input(format!("{}: no [[chain]] tables", path.display())));
+        }
+        let mut scenes = Vec::new();
+        for s in &f.scenes {
+            let spec = s.get_ref().clone();
+            let source = match SceneSource::parse(&spec) {
+                SceneSource::Gen(g) => match bvhlab_geom::gen::canonical_spec(&g) {
+                    Ok(_) => SceneSource::Gen(g),
+                    Err(e) => return Err(at(s.span().start, e.to_string())),
+                },
+                SceneSource::File(_) => match resolve_scene_path(&spec, path) {
+                    Some(p) => SceneSource::File(p),
+                    None => return Err(at(s.span().start, format!("scene file not found: {spec}"))),
+                },
+            };
+            scenes.push((spec, source));
+        }
+        let d = CostParams::default();
+        let cost = match &f.cost {
+            Some(c) => CostParams { c_t: c.c_t.unwrap_or(d.c_t), c_i: c.c_i.unwrap_or(d.c_i) },
+            None => d,
+        };
+        if !(cost.c_t.is_finite() && cost.c_t > 0.0 && cost.c_i.is_finite() && cost.c_i > 0.0) {
+            return Err(Error::input(format!("{}: [cost] c_t and c_i must be finite and > 0", path.display())));
+        }
+        let repeat = f.repeat.unwrap_or(5);
+        if repeat == 0 {
+            return Err(Error::input(format!("{}: `repeat` must be at least 1", path.display())));
+        }
+        let mut points = Vec::new();
+        for (i, ch) in f.chain.iter().enumerate() {
+            let err = |msg: String| at(ch.span().start, format!("chain #{}: {msg}", i + 1));
+            let table = ch.get_ref();
+            let mut axes: Vec<(String, Vec<String>)> = Vec::new();
+            for (k, v) in table {
+                axes.push((k.clone(), value_strings(k, v).map_err(err)?));
+            }
+            if !table.contains_key("build") {
+                return Err(err("missing `build`".into()));
+            }
+            // Cartesian product over all keys (sorted by name, so expansion order is stable).
+            let mut combos: Vec<BTreeMap<String, String>> = vec![BTreeMap::new()];
+            for (k, vals) in &axes {
+                combos = combos
+                    .into_iter()
+                    .flat_map(|c| {
+                        vals.iter().map(move |v| {
+                            let mut c = c.clone();
+                            c.insert(k.clone(), v.clone());
+                            c
+                        })
+                    })
+                    .collect();
+            }
+            for mut c in combos {
+                let build = c.remove("build").unwrap_or_default();
+                let compact = c.remove("compact").unwrap_or_else(|| "none".into());
+                check_compact(&compact).map_err(|e| err(e.message().to_string()))?;
+                registry.resolve(&build, &c, cost).map_err(|e| err(e.message().to_string()))?;
+                points.push(ChainPoint { build, compact, params: c });
+            }
+        }
+        let mut rays = Vec::new();
+        if let Some(r) = &f.rays {
+            for s in &r.sets {
+                rays.push(RaySpec::parse(s.get_ref()).map_err(|e| at(s.span().start, e.message().to_string()))?);
+            }
+        }
+        for k in f.cameras.keys() {
+            if !scenes.iter().any(|(s, _)| s == k) {
+                return Err(Error::input(format!(
+                    "{}: [cameras.\"{k}\"] names a scene not in `scenes`",
+                    path.display()
+                )));
+            }
+        }
+        Ok(Experiment {
+            name: f.name,
+            path: path.to_path_buf(),
+            scenes,
+            repeat,
+            cost,
+            points,
+            rays,
+            camera: f.camera.as_ref().map(CameraToml::camera),
+            cameras: f.cameras.iter().map(|(k, v)| (k.clone(), v.camera())).collect(),
+        })
+    }
+
+    /// Every chain of the experiment, scene-major (so a sweep can free a scene's data after it).
+    pub fn chains(&self) -> Vec<ChainSpec> {
+        let mut out = Vec::new();
+        let rays: Vec<Option<RaySpec>> =
+            if self.rays.is_empty() { vec![None] } else { self.rays.iter().copied().map(Some).collect() };
+        for (spec, source) in &self.scenes {
+            for p in &self.points {
+                for r in &rays {
+                    out.push(ChainSpec {
+                        scene: spec.clone(),
+                        source: source.clone(),
+                        build: p.build.clone(),
+                        params: p.params.clone(),
+                        cost: self.cost,
+                        compact: p.compact.clone(),
+                        rays: *r,
+                        camera: self.cameras.get(spec).copied().or(self.camera),
+                        repeat: self.repeat,
+                    });
+                }
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(src: &str) -> Result<Experiment> {
+        Experiment::parse(src, Path::new("exp.toml"), &Registry::standard())
+    }
+
+    const OK: &str = r#"
+name = "t"
+scenes = ["gen:sphere:n=100", "gen:city"]
+repeat = 3
+[cost]
+c_t = 1.0
+[[chain]]
+build = "binned-sah"
+bins = [4, 8, 16]
+compact = ["none", "collapse"]
+[[chain]]
+build = ["sweep-sah", "spatial-median"]
+leaf = 1
+[rays]
+sets = ["primary:32x16", "random:1000"]
+[camera]
+eye = [0, 0, 5]
+target = [0, 0, 0]
+[cameras."gen:city"]
+eye = [1, 2, 3]
+target = [0, 0, 0]
+fov = 30
+"#;
+
+    #[test]
+    fn grid_expansion() {
+        let e = parse(OK).unwrap();
+        assert_eq!(e.points.len(), 3 * 2 + 2);
+        assert_eq!(e.points[0], ChainPoint {
+            build: "binned-sah".into(),
+            compact: "none".into(),
+            params: [("bins".to_string(), "4".to_string())].into()
+        });
+        assert_eq!(e.points[1].compact, "collapse");
+        assert_eq!(e.points[7].build, "spatial-median");
+        assert_eq!(e.points[7].params.get("leaf").map(String::as_str), Some("1"));
+        assert_eq!(e.cost, CostParams { c_t: 1.0, c_i: 2.0 });
+        let chains = e.chains();
+        assert_eq!(chains.len(), 2 * 8 * 2);
+        assert_eq!(chains[0].repeat, 3);
+        assert_eq!(chains[0].rays, Some(RaySpec::Primary { width: 32, height: 16 }));
+        assert_eq!(chains[0].camera.unwrap().eye, Vec3::new(0.0, 0.0, 5.0));
+        let city = chains.iter().find(|c| c.scene == "gen:city").unwrap();
+        assert_eq!(city.camera.unwrap().fov_y_deg, 30.0);
+        assert!(chains[..16].iter().all(|c| c.scene == "gen:sphere:n=100"));
+    }
+
+    #[test]
+    fn errors_name_file_and_line() {
+        let e = parse("name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\nbuild = \"nope\"\n").unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        assert!(e.message().starts_with("exp.toml:3:"), "{e}");
+        assert!(e.message().contains("binned-sah"), "{e}");
+
+        let e = parse("name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\nbuild = \"binned-sah\"\nbins = [1]\n").unwrap_err();
+        assert!(e.message().contains("bins"), "{e}");
+
+        let e = parse("name = \"x\"\nscenes = [\"gen:sphere\"\n").unwrap_err();
+        assert!(e.message().starts_with("exp.toml:"), "{e}");
+
+        let e = parse("name = \"x\"\nscenes = [\"gen:sphere\"]\nbogus = 1\n[[chain]]\nbuild = \"sweep-sah\"\n").unwrap_err();
+        assert!(e.message().contains("bogus"), "{e}");
+
+        let e = parse("name = \"x\"\nscenes = [\"gen:sphere\", \"missing/file.obj\"]\n[[chain]]\nbuild = \"sweep-sah\"\n")
+            .unwrap_err();
+        assert!(e.message().starts_with("exp.toml:2:") && e.message().contains("missing/file.obj"), "{e}");
+
+        let e = parse("name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\nbuild = \"sweep-sah\"\n[rays]\nsets = [\"laser\"]\n")
+            .unwrap_err();
+        assert!(e.message().starts_with("exp.toml:6:"), "{e}");
+    }
+}

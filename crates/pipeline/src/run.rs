@@ -1,0 +1,547 @@
+//! Runs chains against the store, computing only nodes whose keys are not cached.
+//!
+//! Keys are computed up front from parameters and input keys (never from artifact contents,
+//! except a scene file's bytes), then each node is resolved lazily: a row needs only the small
+//! summaries, so a warm run reads `.sum` files and never decodes scenes or BVHs. A node is counted
+//! once per run, as `computed` or `cached` (read from disk).
+use crate::error::{Error, Result};
+use crate::key::{params_string, stage_key, Key};
+use crate::registry::{fmt_f32, Registry, Resolved};
+use crate::stages::*;
+use crate::store::{now_unix, Machine, Manifest, Store};
+use crate::ResultRow;
+use bvhlab_bvh::Bvh;
+use bvhlab_geom::Scene;
+use bvhlab_trace::Camera;
+use serde::Serialize;
+use std::collections::{BTreeMap, HashMap};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct StageCount {
+    pub computed: u64,
+    pub cached: u64,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct Counts {
+    pub computed: u64,
+    pub cached: u64,
+    pub per_stage: BTreeMap<String, StageCount>,
+}
+
+impl Counts {
+    pub fn stage(&self, stage: &str) -> StageCount {
+        self.per_stage.get(stage).copied().unwrap_or_default()
+    }
+}
+
+#[derive(Clone, Debug)]
+struct NodeDef {
+    stage: &'static str,
+    version: u32,
+    params: BTreeMap<String, String>,
+    inputs: Vec<(&'static str, Key)>,
+    key: Key,
+}
+
+impl NodeDef {
+    fn new(stage: &'static str, version: u32, params: BTreeMap<String, String>, inputs: Vec<(&'static str, Key)>) -> Self {
+        let keys: Vec<Key> = inputs.iter().map(|(_, k)| *k).collect();
+        let key = stage_key(stage, version, &params, &keys);
+        NodeDef { stage, version, params, inputs, key }
+    }
+}
+
+struct Plan {
+    spec: ChainSpec,
+    resolved: Resolved,
+    load: NodeDef,
+    build: NodeDef,
+    compact: Option<NodeDef>,
+    measure: Option<(NodeDef, RaySpec)>,
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Which {
+    Build,
+    Compact,
+}
+
+pub struct Runner {
+    pub store: Store,
+    pub versions: Versions,
+    pub registry: Registry,
+    pub ops: Ops,
+    pub counts: Counts,
+    counted: HashMap<(&'static str, Key), bool>,
+    scenes: HashMap<Key, Arc<Scene>>,
+    scene_sums: HashMap<Key, SceneSummary>,
+    bvhs: HashMap<Key, Arc<BvhArtifact>>,
+    bvh_sums: HashMap<Key, BvhSummary>,
+    file_hashes: HashMap<PathBuf, String>,
+}
+
+fn param(k: &str, v: impl ToString) -> (String, String) {
+    (k.to_string(), v.to_string())
+}
+
+fn secs(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64()
+}
+
+impl Runner {
+    pub fn new(store: Store) -> Runner {
+        Runner {
+            store,
+            versions: Versions::default(),
+            registry: Registry::standard(),
+            ops: Ops::default(),
+            counts: Counts::default(),
+            counted: HashMap::new(),
+            scenes: HashMap::new(),
+            scene_sums: HashMap::new(),
+            bvhs: HashMap::new(),
+            bvh_sums: HashMap::new(),
+            file_hashes: HashMap::new(),
+        }
+    }
+
+    /// Drops in-memory artifacts (call between scenes of a sweep to bound memory). Counting is
+    /// unaffected: a node already counted in this run is not counted again.
+    pub fn forget(&mut self) {
+        self.scenes.clear();
+        self.bvhs.clear();
+    }
+
+    fn note(&mut self, stage: &'static str, key: Key, computed: bool) {
+        let prev = self.counted.get(&(stage, key)).copied();
+        let c = self.counts.per_stage.entry(stage.to_string()).or_default();
+        match (prev, computed) {
+            (None, true) => {
+                c.computed += 1;
+                self.counts.computed += 1;
+            }
+            (None, false) => {
+                c.cached += 1;
+                self.counts.cached += 1;
+            }
+            // Read from disk earlier in this run, recomputed now (its full artifact was corrupt).
+            (Some(false), true) => {
+                c.cached -= 1;
+                c.computed += 1;
+                self.counts.cached -= 1;
+                self.counts.computed += 1;
+            }
+            _ => {}
+        }
+        self.counted.insert((stage, key), prev.unwrap_or(false) || computed);
+    }
+
+    /// Validates a chain and computes every key without running anything.
+    fn plan(&mut self, spec: &ChainSpec) -> Result<Plan> {
+        if spec.repeat == 0 {
+            return Err(Error::input("repeat must be at least 1"));
+        }
+        check_compact(&spec.compact)?;
+        let resolved = self.registry.resolve(&spec.build, &spec.params, spec.cost)?;
+        let load_params: BTreeMap<String, String> = match &spec.source {
+            SceneSource::Gen(g) => [param("gen", (self.ops.canonical_gen)(g)?)].into(),
+            SceneSource::File(path) => {
+                let h = match self.file_hashes.get(path) {
+                    Some(h) => h.clone(),
+                    None => {
+                        // Keyed by content, not path: editing the file invalidates its artifacts.
+                        let bytes = std::fs::read(path)
+                            .map_err(|e| Error::input(format!("{}: cannot read scene: {e}", path.display())))?;
+                        let h = blake3::hash(&bytes).to_hex().to_string();
+                        self.file_hashes.insert(path.clone(), h.clone());
+                        h
+                    }
+                };
+                [param("content", h)].into()
+            }
+        };
+        let load = NodeDef::new("load", self.versions.load, load_params, vec![]);
+        let mut bp = resolved.key_params();
+        bp.insert("builder".into(), resolved.builder.clone());
+        bp.insert("repeat".into(), spec.repeat.to_string());
+        let build = NodeDef::new("build", self.versions.build, bp, vec![("load", load.key)]);
+        let compact = (spec.compact != "none").then(|| {
+            let p = [
+                param("method", &spec.compact),
+                param("c_t", fmt_f32(resolved.cost.c_t)),
+                param("c_i", fmt_f32(resolved.cost.c_i)),
+                param("repeat", spec.repeat),
+            ]
+            .into();
+            NodeDef::new("compact", self.versions.compact, p, vec![("build", build.key)])
+        });
+        let measure = spec.rays.map(|rays| {
+            let final_node = compact.as_ref().unwrap_or(&build);
+            let mut p: BTreeMap<String, String> = [
+                param("rays", rays.canonical()),
+                param("camera", spec.camera.as_ref().map(camera_canonical).unwrap_or_else(|| "auto".into())),
+                param("repeat", spec.repeat),
+            ]
+            .into();
+            if let RaySpec::Random { .. } = rays {
+                p.insert("seed".into(), RANDOM_SEED.to_string());
+            }
+            let inputs = vec![("load", load.key), (final_node.stage, final_node.key)];
+            (NodeDef::new("measure", self.versions.measure, p, inputs), rays)
+        });
+        Ok(Plan { spec: spec.clone(), resolved, load, build, compact, measure })
+    }
+
+    fn commit(&self, node: &NodeDef, files: BTreeMap<String, String>, seconds: f64) -> Result<()> {
+        let mut versions = BTreeMap::new();
+        versions.insert("bvhlab".to_string(), env!("CARGO_PKG_VERSION").to_string());
+        versions.insert("artifact_format".to_string(), crate::codec::FORMAT_VERSION.to_string());
+        self.store.commit(&Manifest {
+            key: node.key.hex(),
+            stage: node.stage.to_string(),
+            version: node.version,
+            params: node.params.clone(),
+            inputs: node.inputs.iter().map(|(s, k)| format!("{s}:{}", k.hex())).collect(),
+            files,
+            versions,
+            machine: Machine::current(),
+            time_unix: now_unix(),
+            compute_seconds: seconds,
+        })
+    }
+
+    fn cached<T: serde::de::DeserializeOwned>(&self, node: &NodeDef, ext: &str) -> Option<T> {
+        if !self.store.has_manifest(node.stage, &node.key) {
+            return None;
+        }
+        self.store.get(node.stage, &node.key, ext)
+    }
+
+    // ---- load -------------------------------------------------------------------------------
+
+    fn scene_full(&mut self, plan: &Plan) -> Result<Arc<Scene>> {
+        let node = &plan.load;
+        if let Some(s) = self.scenes.get(&node.key) {
+            return Ok(s.clone());
+        }
+        if let Some(s) = self.cached::<Scene>(node, "bin") {
+            self.note("load", node.key, false);
+            let s = Arc::new(s);
+            self.scenes.insert(node.key, s.clone());
+            return Ok(s);
+        }
+        let t0 = Instant::now();
+        let scene = (self.ops.load)(&plan.spec.source.load_spec())?;
+        if scene.triangles.is_empty() {
+            return Err(Error::input(format!(
+                "{}: scene has no finite triangles ({} dropped)",
+                plan.spec.scene, scene.dropped_triangles
+            )));
+        }
+        let sum = SceneSummary {
+            triangles: scene.triangles.len() as u64,
+            dropped_triangles: scene.dropped_triangles,
+            bounds: scene.bounds(),
+        };
+        let mut files = BTreeMap::new();
+        files.insert("bin".into(), self.store.put("load", &node.key, "bin", &scene)?);
+        files.insert("sum".into(), self.store.put("load", &node.key, "sum", &sum)?);
+        self.commit(node, files, secs(t0))?;
+        self.note("load", node.key, true);
+        let s = Arc::new(scene);
+        self.scenes.insert(node.key, s.clone());
+        self.scene_sums.insert(node.key, sum);
+        Ok(s)
+    }
+
+    fn scene_summary(&mut self, plan: &Plan) -> Result<SceneSummary> {
+        let key = plan.load.key;
+        if let Some(s) = self.scene_sums.get(&key) {
+            return Ok(s.clone());
+        }
+        if let Some(s) = self.cached::<SceneSummary>(&plan.load, "sum") {
+            self.note("load", key, false);
+            self.scene_sums.insert(key, s.clone());
+            return Ok(s);
+        }
+        let scene = self.scene_full(plan)?;
+        let sum = match self.scene_sums.get(&key) {
+            Some(s) => s.clone(),
+            None => {
+                // Scene read from its full artifact because the summary was missing or corrupt:
+                // restore the summary (same bytes as before, so the manifest stays right).
+                let s = SceneSummary {
+                    triangles: scene.triangles.len() as u64,
+                    dropped_triangles: scene.dropped_triangles,
+                    bounds: scene.bounds(),
+                };
+                self.store.put("load", &key, "sum", &s)?;
+                self.scene_sums.insert(key, s.clone());
+                s
+            }
+        };
+        Ok(sum)
+    }
+
+    // ---- build / compact ----------------------------------------------------------------------
+
+    fn node(plan: &Plan, which: Which) -> &NodeDef {
+        match which {
+            Which::Build => &plan.build,
+            Which::Compact => plan.compact.as_ref().expect("compact node"),
+        }
+    }
+
+    fn bvh_full(&mut self, plan: &Plan, which: Which) -> Result<Arc<BvhArtifact>> {
+        let node = Self::node(plan, which).clone();
+        if let Some(a) = self.bvhs.get(&node.key) {
+            return Ok(a.clone());
+        }
+        if let Some(a) = self.cached::<BvhArtifact>(&node, "bin") {
+            self.note(node.stage, node.key, false);
+            let a = Arc::new(a);
+            self.bvh_sums.insert(node.key, a.summary.clone());
+            self.bvhs.insert(node.key, a.clone());
+            return Ok(a);
+        }
+        let t0 = Instant::now();
+        let scene = self.scene_full(plan)?;
+        let (boxes, centers) = scene.boxes_and_centers();
+        let repeat = plan.spec.repeat as usize;
+        let cost = plan.resolved.cost;
+        let mut seconds = Vec::with_capacity(repeat);
+        let mut first: Option<(Bvh, blake3::Hash)> = None;
+        let input = match which {
+            Which::Build => None,
+            Which::Compact => Some(self.bvh_full(plan, Which::Build)?),
+        };
+        for run in 0..repeat {
+            // Only the method itself is timed; boxes and centres are shared input preparation.
+            let t = Instant::now();
+            let bvh = match &input {
+                None => {
+                    let info = self.registry.get(&plan.resolved.builder)?;
+                    (info.run)(&boxes, &centers, &plan.resolved)
+                }
+                Some(built) => (self.ops.collapse)(&built.bvh, cost),
+            };
+            seconds.push(secs(t));
+            let h = blake3::hash(&bvh.canonical_bytes());
+            match &first {
+                None => first = Some((bvh, h)),
+                Some((_, h0)) if *h0 != h => {
+                    return Err(Error::internal(format!(
+                        "{} `{}` is not deterministic: run {} produced a different BVH than run 1 on {}",
+                        node.stage,
+                        node.params.get("builder").or(node.params.get("method")).cloned().unwrap_or_default(),
+                        run + 1,
+                        plan.spec.scene
+                    )));
+                }
+                _ => {}
+            }
+        }
+        let (bvh, hash) = first.ok_or_else(|| Error::internal("repeat = 0"))?;
+        let metrics = (self.ops.metrics)(&bvh, cost);
+        let validation = (self.ops.validate)(&bvh, &boxes);
+        let summary = BvhSummary {
+            metrics,
+            valid: validation.is_ok(),
+            invalid_reason: validation.err(),
+            bvh_hash: hash.to_hex().to_string(),
+            median_seconds: median(&seconds),
+            seconds,
+        };
+        let art = BvhArtifact { bvh, summary };
+        let mut files = BTreeMap::new();
+        files.insert("bin".into(), self.store.put(node.stage, &node.key, "bin", &art)?);
+        files.insert("sum".into(), self.store.put(node.stage, &node.key, "sum", &art.summary)?);
+        self.commit(&node, files, secs(t0))?;
+        self.note(node.stage, node.key, true);
+        let art = Arc::new(art);
+        self.bvh_sums.insert(node.key, art.summary.clone());
+        self.bvhs.insert(node.key, art.clone());
+        Ok(art)
+    }
+
+    fn bvh_summary(&mut self, plan: &Plan, which: Which) -> Result<BvhSummary> {
+        let node = Self::node(plan, which);
+        let key = node.key;
+        if let Some(s) = self.bvh_sums.get(&key) {
+            return Ok(s.clone());
+        }
+        if let Some(s) = self.cached::<BvhSummary>(node, "sum") {
+            self.note(node.stage, key, false);
+            self.bvh_sums.insert(key, s.clone());
+            return Ok(s);
+        }
+        let art = self.bvh_full(plan, which)?;
+        let path = self.store.path(node.stage, &key, "sum");
+        if !path.exists() {
+            // Full artifact was intact but its summary was not: restore it (identical bytes).
+            self.store.put(node.stage, &key, "sum", &art.summary)?;
+        }
+        Ok(art.summary.clone())
+    }
+
+    // ---- measure ------------------------------------------------------------------------------
+
+    fn measure(&mut self, plan: &Plan) -> Result<MeasureSummary> {
+        let (node, rays_spec) = plan.measure.clone().expect("measure node");
+        if let Some(m) = self.cached::<MeasureSummary>(&node, "sum") {
+            self.note("measure", node.key, false);
+            return Ok(m);
+        }
+        let t0 = Instant::now();
+        let scene = self.scene_full(plan)?;
+        let final_bvh = self.bvh_full(plan, if plan.compact.is_some() { Which::Compact } else { Which::Build })?;
+        let bvh = &final_bvh.bvh;
+        let tris = &scene.triangles;
+        let bounds = scene.bounds();
+        let camera = plan.spec.camera.unwrap_or_else(|| Camera::from_bounds(&bounds));
+        let rays = match rays_spec {
+            RaySpec::Primary { width, height } => bvhlab_trace::primary_rays(&camera, width, height),
+            RaySpec::Shadow { width, height } => {
+                // Shadow rays start at the primary hits (thesis 4.4), so trace primary rays first.
+                let primary = bvhlab_trace::primary_rays(&camera, width, height);
+                let st = bvhlab_trace::trace(bvh, tris, &primary);
+                let t: Vec<f32> = st.hits.iter().map(|h| h.t).collect();
+                bvhlab_trace::shadow_rays(&primary, &t, camera.light(&bounds))
+            }
+            RaySpec::Random { count } => {
+                let c = bounds.center();
+                let r = tris.iter().map(|t| (t.bounds().center() - c).length()).fold(0.0f32, f32::max);
+                bvhlab_trace::random_rays(&bounds, r, count as usize, RANDOM_SEED)
+            }
+        };
+        let mut seconds = Vec::new();
+        let mut first = None;
+        for _ in 0..plan.spec.repeat {
+            let t = Instant::now();
+            let st = bvhlab_trace::trace(bvh, tris, &rays);
+            seconds.push(secs(t));
+            first.get_or_insert(st);
+        }
+        let st = first.ok_or_else(|| Error::internal("repeat = 0"))?;
+        let mut files = BTreeMap::new();
+        let heatmap = match rays_spec {
+            RaySpec::Primary { width, height } => {
+                let path = self.store.path("measure", &node.key, "png");
+                Store::write_atomic_with(&path, |tmp| {
+                    bvhlab_trace::heatmap::write_heatmap_png(tmp, &st.steps, width, height)
+                })?;
+                let bytes = std::fs::read(&path).map_err(|e| Error::internal(format!("{}: {e}", path.display())))?;
+                files.insert("png".to_string(), blake3::hash(&bytes).to_hex().to_string());
+                Some(format!("measure/{}.png", node.key.hex()))
+            }
+            _ => None,
+        };
+        let m = MeasureSummary {
+            rays_kind: rays_spec.canonical(),
+            rays: rays.len() as u64,
+            hits: st.hit_count,
+            total_steps: st.total_steps,
+            total_intersections: st.total_intersections,
+            median_seconds: median(&seconds),
+            seconds,
+            heatmap,
+        };
+        files.insert("sum".into(), self.store.put("measure", &node.key, "sum", &m)?);
+        self.commit(&node, files, secs(t0))?;
+        self.note("measure", node.key, true);
+        Ok(m)
+    }
+
+    // ---- chain ----------------------------------------------------------------------------------
+
+    /// Runs (or reads from the cache) every stage of `spec` and returns its result row.
+    pub fn run_chain(&mut self, spec: &ChainSpec, experiment: &str) -> Result<ResultRow> {
+        let plan = self.plan(spec)?;
+        let scene = self.scene_summary(&plan)?;
+        let build = self.bvh_summary(&plan, Which::Build)?;
+        let compact = match plan.compact {
+            Some(_) => Some(self.bvh_summary(&plan, Which::Compact)?),
+            None => None,
+        };
+        let measure = match plan.measure {
+            Some(_) => Some(self.measure(&plan)?),
+            None => None,
+        };
+        let fin = compact.as_ref().unwrap_or(&build);
+        let m = &fin.metrics;
+        let mut keys = BTreeMap::new();
+        keys.insert("load".to_string(), plan.load.key.hex());
+        keys.insert("build".to_string(), plan.build.key.hex());
+        if let Some(c) = &plan.compact {
+            keys.insert("compact".to_string(), c.key.hex());
+        }
+        if let Some((n, _)) = &plan.measure {
+            keys.insert("measure".to_string(), n.key.hex());
+        }
+        let mut method = self.registry.label(&plan.resolved);
+        if spec.compact != "none" {
+            method.push_str(&format!(" +{}", spec.compact));
+        }
+        let per_ray = |total: u64, rays: u64| if rays == 0 { 0.0 } else { total as f64 / rays as f64 };
+        Ok(ResultRow {
+            experiment: experiment.to_string(),
+            scene: spec.scene.clone(),
+            scene_name: scene_name(&spec.scene),
+            triangles: scene.triangles,
+            dropped_triangles: scene.dropped_triangles,
+            builder: plan.resolved.builder.clone(),
+            build_params: params_string(&plan.resolved.params),
+            compact: spec.compact.clone(),
+            method,
+            c_t: plan.resolved.cost.c_t as f64,
+            c_i: plan.resolved.cost.c_i as f64,
+            sah_cost: m.sah_cost,
+            inner_sa_ratio: m.inner_sa_ratio,
+            leaf_sa_ratio: m.leaf_sa_ratio,
+            refs_per_leaf: m.refs_per_leaf,
+            inner_nodes: m.inner_nodes,
+            leaves: m.leaves,
+            depth: m.depth,
+            bytes: m.bytes,
+            bytes_per_triangle: m.bytes as f64 / scene.triangles.max(1) as f64,
+            valid: build.valid && fin.valid,
+            bvh_hash: fin.bvh_hash.clone(),
+            build_seconds: build.median_seconds,
+            compact_seconds: compact.as_ref().map(|c| c.median_seconds).unwrap_or(0.0),
+            rays_kind: measure.as_ref().map(|x| x.rays_kind.clone()),
+            rays: measure.as_ref().map(|x| x.rays),
+            hits: measure.as_ref().map(|x| x.hits),
+            traversal_steps_per_ray: measure.as_ref().map(|x| per_ray(x.total_steps, x.rays)),
+            intersections_per_ray: measure.as_ref().map(|x| per_ray(x.total_intersections, x.rays)),
+            trace_seconds: measure.as_ref().map(|x| x.median_seconds),
+            mrays_per_s: measure
+                .as_ref()
+                .map(|x| if x.median_seconds > 0.0 { x.rays as f64 / x.median_seconds / 1e6 } else { 0.0 }),
+            heatmap: measure
+                .as_ref()
+                .and_then(|x| x.heatmap.as_ref())
+                .map(|h| self.store.root().join(h).to_string_lossy().to_string()),
+            keys,
+        })
+    }
+}
+
+
+/// Runs `f` in a rayon pool of `threads` threads (None: rayon's default pool).
+pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
+    match threads {
+        None => Ok(f()),
+        Some(0) => Err(Error::input("--threads must be at least 1")),
+        Some(n) => {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .map_err(|e| Error::internal(format!("cannot start {n} threads: {e}")))?;
+            Ok(pool.install(f))
+        }
+    }
+}

@@ -1,0 +1,286 @@
+//! Stage definitions: versions, the artifacts each stage stores, and the chain description.
+//!
+//! Stages: `load` (scene), `build` (BVH), `compact` (SAH collapse of the built BVH), `measure`
+//! (ray set traced through the final BVH). Bump a stage's version when its implementation changes
+//! what it produces: its artifacts and everything downstream get new keys.
+use crate::error::{Error, Result};
+use bvhlab_bvh::{Aabb, Bvh, CostParams, Metrics};
+use bvhlab_geom::{LoadError, Scene};
+use bvhlab_trace::Camera;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+pub const LOAD_VERSION: u32 = 1;
+pub const BUILD_VERSION: u32 = 1;
+pub const COMPACT_VERSION: u32 = 1;
+pub const MEASURE_VERSION: u32 = 1;
+
+/// Stage implementation versions; injectable so tests can simulate a version bump.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Versions {
+    pub load: u32,
+    pub build: u32,
+    pub compact: u32,
+    pub measure: u32,
+}
+
+impl Default for Versions {
+    fn default() -> Self {
+        Versions { load: LOAD_VERSION, build: BUILD_VERSION, compact: COMPACT_VERSION, measure: MEASURE_VERSION }
+    }
+}
+
+/// The functions stages call from other crates; injectable so the cache logic can be tested on its
+/// own (and so a stage can be swapped without touching the runner).
+#[derive(Clone, Copy)]
+pub struct Ops {
+    pub load: fn(&str) -> Result<Scene, LoadError>,
+    /// Canonical form of a generator spec (after `gen:`), so equivalent spellings share a key.
+    pub canonical_gen: fn(&str) -> Result<String, LoadError>,
+    pub metrics: fn(&Bvh, CostParams) -> Metrics,
+    pub validate: fn(&Bvh, &[Aabb]) -> Result<(), String>,
+    pub collapse: fn(&Bvh, CostParams) -> Bvh,
+}
+
+impl Default for Ops {
+    fn default() -> Self {
+        Ops {
+            load: bvhlab_geom::load_scene,
+            canonical_gen: bvhlab_geom::gen::canonical_spec,
+            metrics: bvhlab_bvh::metrics,
+            validate: bvhlab_bvh::validate,
+            collapse: bvhlab_bvh::collapse::collapse,
+        }
+    }
+}
+
+/// Where a scene comes from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SceneSource {
+    /// `gen:` spec (the part after `gen:`).
+    Gen(String),
+    File(PathBuf),
+}
+
+impl SceneSource {
+    pub fn parse(spec: &str) -> SceneSource {
+        match spec.strip_prefix("gen:") {
+            Some(rest) => SceneSource::Gen(rest.to_string()),
+            None => SceneSource::File(PathBuf::from(spec)),
+        }
+    }
+    /// What `load_scene` takes.
+    pub fn load_spec(&self) -> String {
+        match self {
+            SceneSource::Gen(s) => format!("gen:{s}"),
+            SceneSource::File(p) => p.to_string_lossy().to_string(),
+        }
+    }
+}
+
+/// Short name for plots: file stem (without .obj / .obj.gz) or the generator spec.
+pub fn scene_name(spec: &str) -> String {
+    match spec.strip_prefix("gen:") {
+        Some(rest) => rest.to_string(),
+        None => {
+            let file = std::path::Path::new(spec).file_name().map(|s| s.to_string_lossy().to_string());
+            let f = file.unwrap_or_else(|| spec.to_string());
+            f.trim_end_matches(".gz").trim_end_matches(".obj").to_string()
+        }
+    }
+}
+
+/// A ray set of the measure stage (thesis 4.4).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RaySpec {
+    Primary { width: u32, height: u32 },
+    /// Shadow rays from the primary hits of a `width x height` image to a light above the camera.
+    Shadow { width: u32, height: u32 },
+    Random { count: u32 },
+}
+
+pub const DEFAULT_RESOLUTION: u32 = 256;
+pub const DEFAULT_RANDOM_RAYS: u32 = 100_000;
+/// Seed of the random ray set; part of the measure key.
+pub const RANDOM_SEED: u64 = 0x5eed_b71a;
+
+impl RaySpec {
+    /// `primary[:WxH]`, `shadow[:WxH]`, `random[:COUNT]`.
+    pub fn parse(s: &str) -> Result<RaySpec> {
+        let bad = |why: &str| {
+            Error::input(format!(
+                "bad ray set `{s}`: {why}; expected primary[:WIDTHxHEIGHT], shadow[:WIDTHxHEIGHT] or random[:COUNT]"
+            ))
+        };
+        let (kind, arg) = match s.split_once(':') {
+            Some((k, a)) => (k, Some(a)),
+            None => (s, None),
+        };
+        let res = |a: Option<&str>| -> Result<(u32, u32)> {
+            let Some(a) = a else { return Ok((DEFAULT_RESOLUTION, DEFAULT_RESOLUTION)) };
+            let (w, h) = a.split_once('x').ok_or_else(|| bad("resolution must be WIDTHxHEIGHT"))?;
+            let p = |v: &str| v.trim().parse::<u32>().ok().filter(|&n| (1..=16384).contains(&n));
+            match (p(w), p(h)) {
+                (Some(w), Some(h)) => Ok((w, h)),
+                _ => Err(bad("width and height must be integers in 1..=16384")),
+            }
+        };
+        match kind.trim() {
+            "primary" => res(arg).map(|(width, height)| RaySpec::Primary { width, height }),
+            "shadow" => res(arg).map(|(width, height)| RaySpec::Shadow { width, height }),
+            "random" => match arg {
+                None => Ok(RaySpec::Random { count: DEFAULT_RANDOM_RAYS }),
+                Some(a) => match a.trim().parse::<u32>() {
+                    Ok(n) if n >= 1 => Ok(RaySpec::Random { count: n }),
+                    _ => Err(bad("count must be a positive integer")),
+                },
+            },
+            _ => Err(bad("unknown kind")),
+        }
+    }
+    pub fn canonical(&self) -> String {
+        match self {
+            RaySpec::Primary { width, height } => format!("primary:{width}x{height}"),
+            RaySpec::Shadow { width, height } => format!("shadow:{width}x{height}"),
+            RaySpec::Random { count } => format!("random:{count}"),
+        }
+    }
+}
+
+pub fn camera_canonical(c: &Camera) -> String {
+    let v = |v: bvhlab_geom::Vec3| format!("{},{},{}", v.x, v.y, v.z);
+    format!("eye={};target={};up={};fov={}", v(c.eye), v(c.target), v(c.up), c.fov_y_deg)
+}
+
+/// One chain: scene -> build -> optional compaction -> optional measurement.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChainSpec {
+    /// Scene spec as the user gave it (row `scene`).
+    pub scene: String,
+    pub source: SceneSource,
+    pub build: String,
+    /// User-given build parameters (builder params and c_t / c_i), validated by the registry.
+    pub params: BTreeMap<String, String>,
+    /// Default cost constants (experiment `[cost]`), overridden by `params`.
+    pub cost: CostParams,
+    /// `none` or `collapse`.
+    pub compact: String,
+    pub rays: Option<RaySpec>,
+    /// None: derived from the scene bounds.
+    pub camera: Option<Camera>,
+    /// Timed runs per stage (median reported).
+    pub repeat: u32,
+}
+
+impl ChainSpec {
+    pub fn new(scene: &str, build: &str) -> ChainSpec {
+        ChainSpec {
+            scene: scene.to_string(),
+            source: SceneSource::parse(scene),
+            build: build.to_string(),
+            params: BTreeMap::new(),
+            cost: CostParams::default(),
+            compact: "none".into(),
+            rays: None,
+            camera: None,
+            repeat: 5,
+        }
+    }
+}
+
+pub const COMPACT_METHODS: [&str; 2] = ["none", "collapse"];
+
+pub fn check_compact(name: &str) -> Result<()> {
+    if COMPACT_METHODS.contains(&name) {
+        Ok(())
+    } else {
+        Err(Error::input(format!("unknown compaction `{name}`; valid: {}", COMPACT_METHODS.join(", "))))
+    }
+}
+
+/// Small summary of a loaded scene (`load/<key>.sum`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SceneSummary {
+    pub triangles: u64,
+    pub dropped_triangles: u64,
+    pub bounds: Aabb,
+}
+
+/// Summary of a BVH-producing stage (`build`, `compact`): metrics, validity, hash and timings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BvhSummary {
+    pub metrics: Metrics,
+    pub valid: bool,
+    pub invalid_reason: Option<String>,
+    /// blake3 of `Bvh::canonical_bytes`.
+    pub bvh_hash: String,
+    /// Seconds of each of the `repeat` runs.
+    pub seconds: Vec<f64>,
+    pub median_seconds: f64,
+}
+
+/// Full artifact of a BVH-producing stage (`<key>.bin`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BvhArtifact {
+    pub bvh: Bvh,
+    pub summary: BvhSummary,
+}
+
+/// Result of the measure stage (`measure/<key>.sum`; there is no larger artifact).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MeasureSummary {
+    pub rays_kind: String,
+    pub rays: u64,
+    pub hits: u64,
+    pub total_steps: u64,
+    pub total_intersections: u64,
+    pub seconds: Vec<f64>,
+    pub median_seconds: f64,
+    /// Heat map file name relative to the store root, for primary rays.
+    pub heatmap: Option<String>,
+}
+
+pub fn median(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mut s = v.to_vec();
+    s.sort_by(|a, b| a.total_cmp(b));
+    let n = s.len();
+    if n % 2 == 1 {
+        s[n / 2]
+    } else {
+        0.5 * (s[n / 2 - 1] + s[n / 2])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ray_specs() {
+        assert_eq!(RaySpec::parse("primary:800x600").unwrap(), RaySpec::Primary { width: 800, height: 600 });
+        assert_eq!(RaySpec::parse("primary").unwrap().canonical(), "primary:256x256");
+        assert_eq!(RaySpec::parse("random:1000").unwrap(), RaySpec::Random { count: 1000 });
+        assert_eq!(RaySpec::parse("shadow:4x2").unwrap().canonical(), "shadow:4x2");
+        for bad in ["primary:0x5", "random:-3", "laser", "primary:12", "random:x"] {
+            let e = RaySpec::parse(bad).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{bad}");
+        }
+    }
+
+    #[test]
+    fn medians() {
+        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), 2.5);
+        assert_eq!(median(&[]), 0.0);
+    }
+
+    #[test]
+    fn names() {
+        assert_eq!(scene_name("../shared/scenes/stanford_bunny.obj.gz"), "stanford_bunny");
+        assert_eq!(scene_name("gen:sphere:n=10"), "sphere:n=10");
+    }
+}

@@ -1,0 +1,333 @@
+//! Cache behaviour of the runner, independent of the real loaders/builders: scenes, the builder,
+//! metrics, validation and compaction are injected test doubles, so these tests exercise only
+//! keys, counting, the store and corruption handling.
+use bvhlab_bvh::{Aabb, Bvh, CostParams, Metrics, Node, Vec3};
+use bvhlab_geom::{LoadError, Scene, Triangle};
+use bvhlab_pipeline::registry::{BuilderInfo, Kind, ParamSpec, Resolved};
+use bvhlab_pipeline::stages::Ops;
+use bvhlab_pipeline::{ChainSpec, Counts, Key, Registry, ResultRow, Runner, Store, Versions};
+use std::path::Path;
+
+/// `gen:grid:n=N` -> N small triangles on a line; anything else fails like a loader would.
+fn test_load(spec: &str) -> Result<Scene, LoadError> {
+    let n: usize = spec
+        .strip_prefix("gen:grid:n=")
+        .and_then(|s| s.parse().ok())
+        .ok_or_else(|| LoadError { file: spec.into(), line: None, reason: "test loader".into() })?;
+    Ok(Scene::from_triangles((0..n).map(|i| {
+        let x = i as f32;
+        Triangle::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 0.5, 1.0, 0.0), Vec3::new(x, 0.0, 1.0))
+    })))
+}
+
+fn test_build(boxes: &[Aabb], centers: &[Vec3], r: &Resolved) -> Bvh {
+    let leaf = r.u32("leaf").max(1) as usize;
+    let mut idx: Vec<u32> = (0..boxes.len() as u32).collect();
+    let mut nodes = vec![Node::leaf(Aabb::EMPTY, 0, 1)];
+    fn rec(n: usize, lo: usize, hi: usize, leaf: usize, b: &[Aabb], c: &[Vec3], idx: &mut [u32], nodes: &mut Vec<Node>) {
+        let mut bb = Aabb::EMPTY;
+        for &i in &idx[lo..hi] {
+            bb.grow(&b[i as usize]);
+        }
+        if hi - lo <= leaf {
+            nodes[n] = Node::leaf(bb, lo as u32, (hi - lo) as u32);
+            return;
+        }
+        let axis = bb.largest_axis();
+        idx[lo..hi].sort_by(|&a, &b2| c[a as usize][axis].total_cmp(&c[b2 as usize][axis]).then(a.cmp(&b2)));
+        let mid = (lo + hi) / 2;
+        let left = nodes.len();
+        nodes.push(Node::leaf(Aabb::EMPTY, 0, 1));
+        nodes.push(Node::leaf(Aabb::EMPTY, 0, 1));
+        nodes[n] = Node::inner(bb, left as u32);
+        rec(left, lo, mid, leaf, b, c, idx, nodes);
+        rec(left + 1, mid, hi, leaf, b, c, idx, nodes);
+    }
+    let n = boxes.len();
+    rec(0, 0, n, leaf, boxes, centers, &mut idx, &mut nodes);
+    Bvh { nodes, prim_indices: idx }
+}
+
+fn test_metrics(b: &Bvh, cost: CostParams) -> Metrics {
+    let leaves = b.nodes.iter().filter(|n| n.is_leaf()).count() as u64;
+    Metrics {
+        sah_cost: cost.c_t as f64 * b.nodes.len() as f64,
+        leaves,
+        inner_nodes: b.nodes.len() as u64 - leaves,
+        bytes: b.bytes(),
+        ..Default::default()
+    }
+}
+
+fn test_runner(root: &Path, versions: Versions) -> Runner {
+    let mut r = Runner::new(Store::open(root).unwrap());
+    r.versions = versions;
+    r.ops = Ops {
+        load: test_load,
+        canonical_gen: |g| Ok(g.to_string()),
+        metrics: test_metrics,
+        validate: |_, _| Ok(()),
+        // A real change, so compact artifacts differ from build artifacts.
+        collapse: |b, _| {
+            let mut b = b.clone();
+            b.prim_indices.reverse();
+            b
+        },
+    };
+    r.registry = Registry {
+        builders: vec![BuilderInfo {
+            name: "test-median",
+            about: "test double",
+            params: vec![
+                ParamSpec { name: "bins", default: "16", kind: Kind::UInt { min: 2, max: 64 }, about: "", in_label: true },
+                ParamSpec { name: "leaf", default: "2", kind: Kind::UInt { min: 1, max: 8 }, about: "", in_label: false },
+            ],
+            run: test_build,
+        }],
+    };
+    r
+}
+
+/// 2 scenes x (bins 4 and 8) x (none, collapse).
+fn chains(bins: &[&str]) -> Vec<ChainSpec> {
+    let mut out = Vec::new();
+    for scene in ["gen:grid:n=50", "gen:grid:n=77"] {
+        for b in bins {
+            for compact in ["none", "collapse"] {
+                let mut c = ChainSpec::new(scene, "test-median");
+                c.params.insert("bins".into(), b.to_string());
+                c.compact = compact.into();
+                c.repeat = 3;
+                out.push(c);
+            }
+        }
+    }
+    out
+}
+
+fn run_all(root: &Path, versions: Versions, chains: &[ChainSpec]) -> (Vec<ResultRow>, Counts) {
+    let mut r = test_runner(root, versions);
+    let rows = chains.iter().map(|c| r.run_chain(c, "t").unwrap()).collect();
+    (rows, r.counts.clone())
+}
+
+fn stage(c: &Counts, s: &str) -> (u64, u64) {
+    let x = c.stage(s);
+    (x.computed, x.cached)
+}
+
+/// Rows without timings (which legitimately change when a stage is recomputed).
+fn untimed(rows: &[ResultRow]) -> Vec<ResultRow> {
+    rows.iter()
+        .map(|r| ResultRow { build_seconds: 0.0, compact_seconds: 0.0, ..r.clone() })
+        .collect()
+}
+
+#[test]
+fn cold_then_warm() {
+    let dir = tempfile::tempdir().unwrap();
+    let ch = chains(&["4", "8"]);
+    let (cold_rows, cold) = run_all(dir.path(), Versions::default(), &ch);
+    // 2 loads, 4 builds, 4 compactions.
+    assert_eq!((cold.computed, cold.cached), (10, 0));
+    assert_eq!(stage(&cold, "load"), (2, 0));
+    assert_eq!(stage(&cold, "build"), (4, 0));
+    assert_eq!(stage(&cold, "compact"), (4, 0));
+    let (warm_rows, warm) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!((warm.computed, warm.cached), (0, 10));
+    assert_eq!(warm_rows, cold_rows, "cached rows are identical, timings included");
+    assert_eq!(cold_rows[0].triangles, 50);
+    assert_eq!(cold_rows[0].method, "test-median bins=4");
+    assert_eq!(cold_rows[1].method, "test-median bins=4 +collapse");
+    assert_ne!(cold_rows[0].bvh_hash, cold_rows[1].bvh_hash);
+    // Nothing temporary is left behind.
+    for d in std::fs::read_dir(dir.path()).unwrap().flatten() {
+        for f in std::fs::read_dir(d.path()).unwrap().flatten() {
+            assert!(!f.file_name().to_string_lossy().starts_with(".tmp"), "{:?}", f.path());
+        }
+    }
+}
+
+#[test]
+fn default_and_explicit_parameters_share_keys() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut a = ChainSpec::new("gen:grid:n=10", "test-median");
+    a.repeat = 1;
+    let mut b = a.clone();
+    b.params.insert("bins".into(), "16".into());
+    b.params.insert("c_i".into(), "2.0".into());
+    let (_, c1) = run_all(dir.path(), Versions::default(), &[a]);
+    assert_eq!(c1.computed, 2);
+    let (_, c2) = run_all(dir.path(), Versions::default(), &[b]);
+    assert_eq!((c2.computed, c2.cached), (0, 2));
+}
+
+#[test]
+fn changing_one_parameter_recomputes_only_dependents() {
+    let dir = tempfile::tempdir().unwrap();
+    run_all(dir.path(), Versions::default(), &chains(&["4", "8"]));
+    let (_, c) = run_all(dir.path(), Versions::default(), &chains(&["4", "16"]));
+    assert_eq!(stage(&c, "load"), (0, 2));
+    assert_eq!(stage(&c, "build"), (2, 2), "bins=16 is new in both scenes");
+    assert_eq!(stage(&c, "compact"), (2, 2));
+    // A cost constant feeds build and compact (and metrics) of every chain.
+    let mut ch = chains(&["4"]);
+    for c in &mut ch {
+        c.params.insert("c_t".into(), "1.5".into());
+    }
+    let (_, c) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!(stage(&c, "load"), (0, 2));
+    assert_eq!(stage(&c, "build"), (2, 0));
+    assert_eq!(stage(&c, "compact"), (2, 0));
+}
+
+#[test]
+fn version_bump_invalidates_stage_and_downstream_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let ch = chains(&["4", "8"]);
+    run_all(dir.path(), Versions::default(), &ch);
+    let v = Versions { compact: Versions::default().compact + 1, ..Versions::default() };
+    let (_, c) = run_all(dir.path(), v, &ch);
+    assert_eq!((stage(&c, "load"), stage(&c, "build"), stage(&c, "compact")), ((0, 2), (0, 4), (4, 0)));
+    let v = Versions { build: Versions::default().build + 1, ..Versions::default() };
+    let (_, c) = run_all(dir.path(), v, &ch);
+    assert_eq!((stage(&c, "load"), stage(&c, "build"), stage(&c, "compact")), ((0, 2), (4, 0), (4, 0)));
+    let v = Versions { load: Versions::default().load + 1, ..Versions::default() };
+    let (_, c) = run_all(dir.path(), v, &ch);
+    assert_eq!((c.computed, c.cached), (10, 0));
+}
+
+fn flip_last_byte(p: &Path) {
+    let mut b = std::fs::read(p).unwrap();
+    let n = b.len() - 1;
+    b[n] ^= 0x55;
+    std::fs::write(p, b).unwrap();
+}
+
+#[test]
+fn corrupt_artifacts_are_recomputed_not_used() {
+    let dir = tempfile::tempdir().unwrap();
+    let ch = chains(&["4"]);
+    let (rows, _) = run_all(dir.path(), Versions::default(), &ch);
+    let store = Store::open(dir.path()).unwrap();
+    let build_key = Key::from_hex(&rows[0].keys["build"]).unwrap();
+    let load_key = Key::from_hex(&rows[0].keys["load"]).unwrap();
+
+    // Summary and full artifact of one build both corrupt: the build is recomputed.
+    flip_last_byte(&store.path("build", &build_key, "sum"));
+    flip_last_byte(&store.path("build", &build_key, "bin"));
+    let (rows2, c) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!(stage(&c, "build"), (1, 1));
+    assert_eq!(stage(&c, "load"), (0, 2), "the recomputed build read the intact scene from the cache");
+    assert_eq!(untimed(&rows2), untimed(&rows));
+    assert!(dir.path().join("quarantine").read_dir().unwrap().count() >= 2);
+    // The recomputed entry is whole again.
+    assert!(store.verify().bad.is_empty());
+
+    // Only the summary corrupt: it is restored from the intact full artifact (no recompute).
+    flip_last_byte(&store.path("build", &build_key, "sum"));
+    let (rows3, c) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!(c.computed, 0);
+    assert_eq!(rows3[0].bvh_hash, rows[0].bvh_hash);
+    assert!(store.path("build", &build_key, "sum").is_file());
+    assert!(store.verify().bad.is_empty());
+
+    // A corrupt scene is recomputed when a build needs it, and verify would have caught it.
+    flip_last_byte(&store.path("load", &load_key, "bin"));
+    let v = Versions { build: Versions::default().build + 1, ..Versions::default() };
+    let (rows4, c) = run_all(dir.path(), v, &ch);
+    assert_eq!(stage(&c, "load"), (1, 1));
+    assert_eq!(rows4[0].bvh_hash, rows[0].bvh_hash);
+}
+
+#[test]
+fn verify_finds_corruption_and_next_run_repairs() {
+    let dir = tempfile::tempdir().unwrap();
+    let ch = chains(&["4"]);
+    let (rows, _) = run_all(dir.path(), Versions::default(), &ch);
+    let store = Store::open(dir.path()).unwrap();
+    let k = Key::from_hex(&rows[1].keys["compact"]).unwrap();
+    flip_last_byte(&store.path("compact", &k, "bin"));
+    let r = store.verify();
+    assert_eq!(r.bad.len(), 1, "{:?}", r.bad);
+    assert!(!store.path("compact", &k, "bin").exists());
+    // The summary is intact, so a warm run still computes nothing...
+    let (_, c) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!(c.computed, 0);
+    // ...and gc removes quarantined files.
+    assert!(store.gc().removed_files >= 1);
+    assert!(!dir.path().join("quarantine").exists());
+}
+
+#[test]
+fn manifest_records_provenance() {
+    let dir = tempfile::tempdir().unwrap();
+    let (rows, _) = run_all(dir.path(), Versions::default(), &chains(&["8"]));
+    let store = Store::open(dir.path()).unwrap();
+    let bk = Key::from_hex(&rows[1].keys["build"]).unwrap();
+    let m = store.read_manifest("build", &bk).unwrap();
+    assert_eq!(m.key, bk.hex());
+    assert_eq!(m.stage, "build");
+    assert_eq!(m.version, Versions::default().build);
+    assert_eq!(m.params["bins"], "8");
+    assert_eq!(m.params["leaf"], "2");
+    assert_eq!(m.params["c_t"], "3");
+    assert_eq!(m.params["builder"], "test-median");
+    assert_eq!(m.params["repeat"], "3");
+    assert_eq!(m.inputs, vec![format!("load:{}", rows[1].keys["load"])]);
+    assert!(m.versions.contains_key("bvhlab"));
+    assert!(m.machine.cpus >= 1 && !m.machine.os.is_empty());
+    assert!(m.time_unix > 1_600_000_000);
+    for (ext, h) in &m.files {
+        let bytes = std::fs::read(store.path("build", &bk, ext)).unwrap();
+        assert_eq!(&blake3::hash(&bytes).to_hex().to_string(), h);
+    }
+    assert_eq!(m.files.len(), 2);
+    let ck = Key::from_hex(&rows[1].keys["compact"]).unwrap();
+    let mc = store.read_manifest("compact", &ck).unwrap();
+    assert_eq!(mc.inputs, vec![format!("build:{}", bk.hex())]);
+    assert_eq!(store.entries().len(), 2 + 2 + 2);
+}
+
+#[test]
+fn bad_input_is_an_input_error_and_leaves_cache_intact() {
+    let dir = tempfile::tempdir().unwrap();
+    let ch = chains(&["4"]);
+    run_all(dir.path(), Versions::default(), &ch);
+    let before = Store::open(dir.path()).unwrap().entries().len();
+    let mut r = test_runner(dir.path(), Versions::default());
+    let e = r.run_chain(&ChainSpec::new("gen:bogus", "test-median"), "t").unwrap_err();
+    assert_eq!(e.exit_code(), 2);
+    let e = r.run_chain(&ChainSpec::new("gen:grid:n=5", "nope"), "t").unwrap_err();
+    assert!(e.message().contains("test-median"), "{e}");
+    let mut c = ChainSpec::new("gen:grid:n=5", "test-median");
+    c.params.insert("bins".into(), "1000".into());
+    assert_eq!(r.run_chain(&c, "t").unwrap_err().exit_code(), 2);
+    let e = r.run_chain(&ChainSpec::new("gen:grid:n=0", "test-median"), "t").unwrap_err();
+    assert_eq!(e.exit_code(), 2);
+    let e = r.run_chain(&ChainSpec::new("/no/such/file.obj", "test-median"), "t").unwrap_err();
+    assert!(e.message().contains("/no/such/file.obj") && e.exit_code() == 2, "{e}");
+    assert_eq!(Store::open(dir.path()).unwrap().entries().len(), before);
+    let (_, c) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!(c.computed, 0);
+}
+
+#[test]
+fn nondeterministic_builder_fails_loudly() {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static CALLS: AtomicU32 = AtomicU32::new(0);
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = test_runner(dir.path(), Versions::default());
+    r.registry.builders[0].run = |b, c, res| {
+        let mut bvh = test_build(b, c, res);
+        if CALLS.fetch_add(1, Ordering::SeqCst) % 2 == 1 {
+            bvh.prim_indices.swap(0, 1);
+        }
+        bvh
+    };
+    let mut c = ChainSpec::new("gen:grid:n=20", "test-median");
+    c.repeat = 3;
+    let e = r.run_chain(&c, "t").unwrap_err();
+    assert!(e.message().contains("not deterministic"), "{e}");
+    assert_eq!(e.exit_code(), 1);
+}
