@@ -1,16 +1,238 @@
 //! The report: every result row in a polars DataFrame (results.parquet, results.csv), plots made with
 //! plotters (PNG and SVG), and index.html. Polars lives only here so algorithm crates build fast.
+pub mod frame;
+mod fsutil;
+mod html;
+pub mod plots;
+pub mod reference;
+
+pub use plots::pareto::pareto_front;
+
 use bvhlab_pipeline::ResultRow;
+use fsutil::Stems;
+use html::{Heatmap, Page, Section};
+use plots::bars::{Bar, BarsFigure, Panel};
+use plots::pareto::{ParetoFigure, ParetoPoint};
+use plots::reference::ReferenceFigure;
+use plots::{render, Plot};
 use std::path::{Path, PathBuf};
 
-/// Writes `out_dir/{results.parquet, results.csv, *.png, *.svg, index.html}` and returns the path
-/// of index.html. `reference_dir` is ../shared/reference when present (papers' tables as TSV).
+const PLOTS_DIR: &str = "plots";
+const HEATMAPS_DIR: &str = "heatmaps";
+
+/// Writes `out_dir/{results.parquet, results.csv, plots/*.png, plots/*.svg, heatmaps/*.png,
+/// index.html}` and returns the path of index.html. `reference_dir` is ../shared/reference when
+/// present (papers' tables as TSV).
+///
+/// The tables and index.html are required (errors propagate); a plot or heat map that cannot be made
+/// (e.g. no fonts for plotters) is listed under "Problems" in index.html instead of failing the run.
 pub fn write_report(
     out_dir: &Path,
     experiment: &str,
     rows: &[ResultRow],
     reference_dir: Option<&Path>,
 ) -> Result<PathBuf, String> {
-    let _ = (out_dir, experiment, rows, reference_dir);
-    todo!()
+    let plots_dir = out_dir.join(PLOTS_DIR);
+    std::fs::create_dir_all(&plots_dir).map_err(|e| format!("{}: {e}", plots_dir.display()))?;
+
+    let mut df = frame::to_dataframe(rows)?;
+    frame::write_parquet(&mut df, &out_dir.join("results.parquet"))?;
+    frame::write_csv(&mut df, &out_dir.join("results.csv"))?;
+
+    let methods = unique(rows.iter().map(|r| r.method.as_str()));
+    let method_index = |m: &str| methods.iter().position(|x| *x == m).unwrap_or(0);
+    let scenes = unique(rows.iter().map(|r| r.scene.as_str()));
+    let mut problems = Vec::new();
+    let mut stems = Stems::default();
+    let mut plot = |fig: &dyn DynFigure, stem: &str, title: &str, problems: &mut Vec<String>| {
+        let stem = stems.unique(stem);
+        match fig.render(&plots_dir, &stem, title) {
+            Ok(mut p) => {
+                p.png = format!("{PLOTS_DIR}/{}", p.png);
+                p.svg = format!("{PLOTS_DIR}/{}", p.svg);
+                Some(p)
+            }
+            Err(e) => {
+                problems.push(e);
+                None
+            }
+        }
+    };
+
+    let mut pareto = Vec::new();
+    let mut sah = Vec::new();
+    let mut rays = Vec::new();
+    for scene in &scenes {
+        let scene_rows: Vec<&ResultRow> = rows.iter().filter(|r| r.scene == *scene).collect();
+        let name = scene_rows[0].scene_name.as_str();
+        // One point / bar per chain: ray sets repeat the build metrics, keep the first row.
+        let chains = first_per(&scene_rows, |r| r.method.clone());
+
+        let fig = ParetoFigure {
+            scene: name.to_string(),
+            points: chains
+                .iter()
+                .map(|r| ParetoPoint {
+                    label: r.method.clone(),
+                    method_index: method_index(&r.method),
+                    seconds: r.build_seconds + r.compact_seconds,
+                    sah_cost: r.sah_cost,
+                })
+                .collect(),
+        };
+        pareto.extend(plot(&fig, &format!("pareto_{name}"), &format!("{name}: build time vs SAH cost"), &mut problems));
+
+        let bars = |v: &dyn Fn(&ResultRow) -> Option<f64>, rs: &[&ResultRow]| -> Vec<Bar> {
+            rs.iter()
+                .filter_map(|r| {
+                    v(r).map(|value| Bar { label: r.method.clone(), value, color_index: method_index(&r.method) })
+                })
+                .collect()
+        };
+        let fig = BarsFigure {
+            caption: format!("{name}: SAH cost per method"),
+            panels: vec![Panel {
+                title: format!("c_T = {}, c_I = {}", scene_rows[0].c_t, scene_rows[0].c_i),
+                x_desc: "SAH cost".into(),
+                bars: bars(&|r| Some(r.sah_cost), &chains),
+            }],
+        };
+        sah.extend(plot(&fig, &format!("sah_{name}"), &format!("{name}: SAH cost"), &mut problems));
+
+        let kinds = unique(scene_rows.iter().filter_map(|r| r.rays_kind.as_deref()));
+        for kind in kinds {
+            let kind_rows: Vec<&ResultRow> = scene_rows
+                .iter()
+                .copied()
+                .filter(|r| r.rays_kind.as_deref() == Some(kind))
+                .collect();
+            let kind_rows = first_per(&kind_rows, |r| r.method.clone());
+            let steps = bars(&|r| r.traversal_steps_per_ray, &kind_rows);
+            let isects = bars(&|r| r.intersections_per_ray, &kind_rows);
+            if steps.is_empty() && isects.is_empty() {
+                continue;
+            }
+            let fig = BarsFigure {
+                caption: format!("{name}, {kind} rays"),
+                panels: vec![
+                    Panel { title: "traversal steps per ray".into(), x_desc: "steps / ray".into(), bars: steps },
+                    Panel { title: "intersections per ray".into(), x_desc: "intersections / ray".into(), bars: isects },
+                ],
+            };
+            rays.extend(plot(&fig, &format!("rays_{name}_{kind}"), &format!("{name}: {kind} rays"), &mut problems));
+        }
+    }
+
+    let heatmaps = copy_heatmaps(out_dir, rows, &mut problems);
+
+    let reference = reference_dir.map(|d| reference::compare(d, rows));
+    let mut reference_plots = Vec::new();
+    if let Some(Ok(rep)) = &reference {
+        for metric in unique(rep.comparisons.iter().map(|c| c.metric.as_str())) {
+            let fig = ReferenceFigure {
+                metric: metric.to_string(),
+                items: rep.comparisons.iter().filter(|c| c.metric == metric).cloned().collect(),
+            };
+            reference_plots.extend(plot(
+                &fig,
+                &format!("reference_{metric}"),
+                &format!("{metric}: ours vs Frantal 2019"),
+                &mut problems,
+            ));
+        }
+    }
+
+    let sections = vec![
+        Section {
+            id: "pareto",
+            title: "Build time vs SAH cost (Pareto front)".into(),
+            intro: "One point per chain (builder, parameters, compaction) and scene. Filled, ringed \
+                    points are on the Pareto front (no other chain is both faster and cheaper); the \
+                    line connects them. Time is build plus compaction (medians)."
+                .into(),
+            plots: pareto,
+        },
+        Section {
+            id: "sah",
+            title: "SAH cost per method".into(),
+            intro: "SAH cost of each chain per scene, with the cost constants of the run.".into(),
+            plots: sah,
+        },
+        Section {
+            id: "rays",
+            title: "Traversal steps and intersections per ray".into(),
+            intro: "Per scene and ray set, for chains with a measure stage.".into(),
+            plots: rays,
+        },
+    ];
+    let page = Page {
+        experiment,
+        generated: html::utc_now(),
+        rows,
+        sections,
+        heatmaps,
+        reference,
+        reference_plots,
+        problems,
+    };
+    let index = out_dir.join("index.html");
+    fsutil::write_atomic(&index, html::render(&page).as_bytes())?;
+    Ok(index)
+}
+
+/// Object-safe wrapper so one closure can render every figure type.
+trait DynFigure {
+    fn render(&self, dir: &Path, stem: &str, title: &str) -> Result<Plot, String>;
+}
+
+impl<F: plots::Figure> DynFigure for F {
+    fn render(&self, dir: &Path, stem: &str, title: &str) -> Result<Plot, String> {
+        render(self, dir, stem, title)
+    }
+}
+
+/// Distinct values in first-appearance order (deterministic plot and legend order).
+fn unique<'a>(it: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
+    let mut out: Vec<&str> = Vec::new();
+    for s in it {
+        if !out.contains(&s) {
+            out.push(s);
+        }
+    }
+    out
+}
+
+fn first_per<'a>(rows: &[&'a ResultRow], key: impl Fn(&ResultRow) -> String) -> Vec<&'a ResultRow> {
+    let mut seen = std::collections::HashSet::new();
+    rows.iter().copied().filter(|r| seen.insert(key(r))).collect()
+}
+
+/// Copies each row's heat map PNG (a cache path) into `out_dir/heatmaps/` under a readable name, so
+/// the report stays valid when the cache is cleaned. Missing files are reported, not fatal.
+fn copy_heatmaps(out_dir: &Path, rows: &[ResultRow], problems: &mut Vec<String>) -> Vec<Heatmap> {
+    let mut out = Vec::new();
+    let mut stems = Stems::default();
+    let mut done = std::collections::HashSet::new();
+    let dir = out_dir.join(HEATMAPS_DIR);
+    for r in rows {
+        let Some(src) = r.heatmap.as_deref() else { continue };
+        if !done.insert((r.scene.clone(), r.method.clone(), src.to_string())) {
+            continue;
+        }
+        if let Err(e) = std::fs::create_dir_all(&dir) {
+            problems.push(format!("{}: {e}", dir.display()));
+            return out;
+        }
+        let kind = r.rays_kind.as_deref().unwrap_or("rays");
+        let stem = stems.unique(&format!("{}__{}__{}", r.scene_name, r.method, kind));
+        let file = format!("{stem}.png");
+        match fsutil::copy_atomic(Path::new(src), &dir.join(&file)) {
+            Ok(()) => out.push(Heatmap {
+                caption: format!("{}: {} ({})", r.scene_name, r.method, kind),
+                file: format!("{HEATMAPS_DIR}/{file}"),
+            }),
+            Err(e) => problems.push(format!("heat map of {} / {}: {e}", r.scene_name, r.method)),
+        }
+    }
+    out
 }

@@ -1,0 +1,153 @@
+//! Plots. Every figure is drawn once, generically over the plotters backend, and rendered twice:
+//! PNG (BitMapBackend) for index.html and SVG (SVGBackend) for zooming and papers.
+pub mod bars;
+pub mod pareto;
+pub mod reference;
+
+use crate::fsutil::{commit, tmp_path};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::Path;
+
+/// A figure that can draw itself on any backend.
+pub trait Figure {
+    fn size(&self) -> (u32, u32);
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String>;
+}
+
+/// Files of one rendered figure, relative to the report directory.
+#[derive(Clone, Debug)]
+pub struct Plot {
+    pub title: String,
+    pub png: String,
+    pub svg: String,
+}
+
+/// Renders `fig` as `<out_dir>/<stem>.png` and `.svg`. Text rendering goes through the system's
+/// fonts (fontconfig); if that fails, or plotters panics, the error comes back as `Err` so the rest
+/// of the report is still written.
+pub fn render<F: Figure>(fig: &F, out_dir: &Path, stem: &str, title: &str) -> Result<Plot, String> {
+    let png_name = format!("{stem}.png");
+    let svg_name = format!("{stem}.svg");
+    let png = out_dir.join(&png_name);
+    let svg = out_dir.join(&svg_name);
+    let size = fig.size();
+    let res = catch_unwind(AssertUnwindSafe(|| -> Result<(), String> {
+        let tmp = tmp_path(&png);
+        let drawn = (|| {
+            let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+            root.fill(&WHITE).map_err(err)?;
+            fig.draw(&root)?;
+            root.present().map_err(err)
+        })();
+        finish(drawn, &tmp, &png)?;
+        let tmp = tmp_path(&svg);
+        let drawn = (|| {
+            let root = SVGBackend::new(&tmp, size).into_drawing_area();
+            root.fill(&WHITE).map_err(err)?;
+            fig.draw(&root)?;
+            root.present().map_err(err)
+        })();
+        finish(drawn, &tmp, &svg)
+    }));
+    match res {
+        Ok(Ok(())) => Ok(Plot { title: title.to_string(), png: png_name, svg: svg_name }),
+        Ok(Err(e)) => Err(format!("plot '{title}': {e}")),
+        Err(_) => Err(format!("plot '{title}': plotters panicked (fonts missing?)")),
+    }
+}
+
+fn finish(drawn: Result<(), String>, tmp: &Path, path: &Path) -> Result<(), String> {
+    match drawn {
+        Ok(()) => commit(tmp, path),
+        Err(e) => {
+            let _ = std::fs::remove_file(tmp);
+            Err(format!("{}: {e}", path.display()))
+        }
+    }
+}
+
+pub fn err<E: std::fmt::Display>(e: E) -> String {
+    e.to_string()
+}
+
+/// Stable colour of the i-th method, the same in every figure.
+pub fn color(i: usize) -> RGBColor {
+    // Tableau 10: distinguishable and print-friendly.
+    const C: [(u8, u8, u8); 10] = [
+        (31, 119, 180),
+        (255, 127, 14),
+        (44, 160, 44),
+        (214, 39, 40),
+        (148, 103, 189),
+        (140, 86, 75),
+        (227, 119, 194),
+        (127, 127, 127),
+        (188, 189, 34),
+        (23, 190, 207),
+    ];
+    let (r, g, b) = C[i % C.len()];
+    RGBColor(r, g, b)
+}
+
+/// Compact number for labels: 3-4 significant digits, scientific outside [1e-3, 1e6).
+pub fn fmt_num(v: f64) -> String {
+    if !v.is_finite() {
+        return format!("{v}");
+    }
+    let a = v.abs();
+    if a == 0.0 {
+        "0".into()
+    } else if !(1e-3..1e6).contains(&a) {
+        format!("{v:.2e}")
+    } else if a >= 100.0 {
+        format!("{v:.1}")
+    } else if a >= 10.0 {
+        format!("{v:.2}")
+    } else if a >= 1.0 {
+        format!("{v:.3}")
+    } else {
+        let digits = (-a.log10()).floor() as usize + 3;
+        format!("{v:.digits$}")
+    }
+}
+
+/// Range that contains every finite value in `vs` and `0` (bars start at zero), with headroom for
+/// value labels; never empty.
+pub fn bar_range(vs: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
+    let (lo, hi) = vs
+        .filter(|v| v.is_finite())
+        .fold((0.0f64, 0.0f64), |(lo, hi), v| (lo.min(v), hi.max(v)));
+    let span = if hi - lo > 0.0 { hi - lo } else { 1.0 };
+    let lo = if lo < 0.0 { lo - 0.18 * span } else { 0.0 };
+    lo..hi + 0.18 * span
+}
+
+/// Category axis for horizontal bar charts: `n` slots of height 1, one tick (label) at each slot
+/// centre. plotters' own `WithKeyPoints<RangedCoordf64>` cannot take a custom label formatter.
+pub struct Categories(pub usize);
+
+impl plotters::coord::ranged1d::Ranged for Categories {
+    type FormatOption = plotters::coord::ranged1d::DefaultFormatting;
+    type ValueType = f64;
+
+    fn map(&self, v: &f64, limit: (i32, i32)) -> i32 {
+        let n = self.0.max(1) as f64;
+        let span = (limit.1 - limit.0) as f64;
+        limit.0 + (span * (v / n) + 1e-3).floor() as i32
+    }
+
+    fn key_points<H: plotters::coord::ranged1d::KeyPointHint>(&self, hint: H) -> Vec<f64> {
+        if hint.weight().allow_light_points() {
+            return Vec::new();
+        }
+        // Label every slot if there is room, else every k-th.
+        let step = self.0.div_ceil(hint.max_num_points().max(1)).max(1);
+        (0..self.0).step_by(step).map(|i| i as f64 + 0.5).collect()
+    }
+
+    fn range(&self) -> std::ops::Range<f64> {
+        0.0..self.0.max(1) as f64
+    }
+}

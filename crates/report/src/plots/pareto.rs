@@ -1,0 +1,235 @@
+//! Build time against SAH cost, one point per (builder, parameters, compaction) of a scene, with the
+//! Pareto front (DEVELOPERS.md principle 1: chart speed against quality).
+use super::{color, err, fmt_num, Figure};
+use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+/// Indices of the points no other point dominates when minimizing both coordinates, sorted by
+/// increasing x. `q` dominates `p` when `q.x <= p.x`, `q.y <= p.y` and one of them is strictly
+/// smaller, so identical points are all on the front. Points with a NaN or infinite coordinate are
+/// never on the front and never dominate.
+pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
+    let mut idx: Vec<usize> = (0..points.len())
+        .filter(|&i| points[i].0.is_finite() && points[i].1.is_finite())
+        .collect();
+    // x ascending, then y ascending, then index for determinism.
+    idx.sort_by(|&a, &b| {
+        let (pa, pb) = (points[a], points[b]);
+        pa.0.total_cmp(&pb.0).then(pa.1.total_cmp(&pb.1)).then(a.cmp(&b))
+    });
+    let mut front: Vec<usize> = Vec::new();
+    let mut best_y = f64::INFINITY;
+    for i in idx {
+        let p = points[i];
+        let same_as_last = front.last().is_some_and(|&j| points[j] == p);
+        // Everything before `p` has x <= p.x; p survives only with a strictly lower y than all of
+        // them, or by being an exact copy of the last front point.
+        if p.1 < best_y || same_as_last {
+            front.push(i);
+            best_y = best_y.min(p.1);
+        }
+    }
+    front
+}
+
+pub struct ParetoPoint {
+    pub label: String,
+    /// Index into the report-wide method list (stable colour).
+    pub method_index: usize,
+    pub seconds: f64,
+    pub sah_cost: f64,
+}
+
+pub struct ParetoFigure {
+    pub scene: String,
+    pub points: Vec<ParetoPoint>,
+}
+
+impl ParetoFigure {
+    /// Finite points (log axes need positive times too, handled in `draw`).
+    fn finite(&self) -> Vec<&ParetoPoint> {
+        self.points.iter().filter(|p| p.seconds.is_finite() && p.sah_cost.is_finite()).collect()
+    }
+}
+
+impl Figure for ParetoFigure {
+    fn size(&self) -> (u32, u32) {
+        (900, 600)
+    }
+
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+        let pts = self.finite();
+        let title = format!("{}: build time vs SAH cost", self.scene);
+        if pts.is_empty() {
+            root.draw(&Text::new(
+                format!("{title}: no finite (time, cost) points"),
+                (20, 20),
+                ("sans-serif", 18).into_font(),
+            ))
+            .map_err(err)?;
+            return Ok(());
+        }
+        let (xmin, xmax) = min_max(pts.iter().map(|p| p.seconds));
+        let (ymin, ymax) = min_max(pts.iter().map(|p| p.sah_cost));
+        let ypad = if ymax > ymin { 0.08 * (ymax - ymin) } else { 0.05 * ymax.abs().max(1.0) };
+        let yr = (ymin - ypad)..(ymax + ypad);
+        // Log x when the times span more than a decade (and are all positive), so that fast
+        // builders are not squashed against the axis.
+        if xmin > 0.0 && xmax / xmin > 10.0 {
+            let xr = (xmin / 1.5..xmax * 1.5).log_scale();
+            self.draw_with(root, &title, xr, yr, "build + compact time [s] (log)")
+        } else {
+            let xpad = if xmax > xmin { 0.08 * (xmax - xmin) } else { 0.05 * xmax.abs().max(1e-6) };
+            let lo = if xmin >= 0.0 { 0.0 } else { xmin - xpad };
+            let xr = lo..(xmax + xpad);
+            self.draw_with(root, &title, xr, yr, "build + compact time [s]")
+        }
+    }
+}
+
+impl ParetoFigure {
+    fn draw_with<DB, X>(
+        &self,
+        root: &DrawingArea<DB, Shift>,
+        title: &str,
+        xr: X,
+        yr: std::ops::Range<f64>,
+        xdesc: &str,
+    ) -> Result<(), String>
+    where
+        DB: DrawingBackend,
+        X: AsRangedCoord<Value = f64>,
+        X::CoordDescType: ValueFormatter<f64>,
+    {
+        let pts = self.finite();
+        let mut chart = ChartBuilder::on(root)
+            .caption(title, ("sans-serif", 22))
+            .margin(15)
+            .x_label_area_size(45)
+            .y_label_area_size(70)
+            .build_cartesian_2d(xr, yr)
+            .map_err(err)?;
+        chart
+            .configure_mesh()
+            .x_desc(xdesc)
+            .y_desc("SAH cost")
+            .x_label_formatter(&|v| fmt_num(*v))
+            .y_label_formatter(&|v| fmt_num(*v))
+            .draw()
+            .map_err(err)?;
+
+        let xy: Vec<(f64, f64)> = pts.iter().map(|p| (p.seconds, p.sah_cost)).collect();
+        let front = pareto_front(&xy);
+        let on_front: Vec<bool> = {
+            let mut v = vec![false; pts.len()];
+            for &i in &front {
+                v[i] = true;
+            }
+            v
+        };
+        // The front as a staircase would suggest interpolated configurations exist; a plain
+        // polyline just connects the non-dominated points in time order.
+        chart
+            .draw_series(LineSeries::new(
+                front.iter().map(|&i| xy[i]),
+                ShapeStyle { color: BLACK.mix(0.7), filled: false, stroke_width: 2 },
+            ))
+            .map_err(err)?
+            .label("Pareto front")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
+
+        for (k, p) in pts.iter().enumerate() {
+            let c = color(p.method_index);
+            let style = if on_front[k] { c.filled() } else { c.stroke_width(2) };
+            let radius = if on_front[k] { 7 } else { 5 };
+            chart
+                .draw_series(std::iter::once(
+                    EmptyElement::at((p.seconds, p.sah_cost))
+                        + Circle::new((0, 0), radius, style)
+                        + Text::new(p.label.clone(), (9, -14), ("sans-serif", 13).into_font()),
+                ))
+                .map_err(err)?;
+            if on_front[k] {
+                chart
+                    .draw_series(std::iter::once(Circle::new(
+                        (p.seconds, p.sah_cost),
+                        radius + 2,
+                        BLACK.stroke_width(1),
+                    )))
+                    .map_err(err)?;
+            }
+        }
+        chart
+            .draw_series(std::iter::empty::<Circle<(f64, f64), i32>>())
+            .map_err(err)?
+            .label("filled, ringed: on the front")
+            .legend(|(x, y)| Circle::new((x + 10, y), 5, BLACK.filled()));
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK.mix(0.5))
+            .label_font(("sans-serif", 13))
+            .draw()
+            .map_err(err)?;
+        Ok(())
+    }
+}
+
+fn min_max(vs: impl Iterator<Item = f64>) -> (f64, f64) {
+    vs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::pareto_front;
+
+    /// Brute force: p is on the front iff no finite q dominates it.
+    fn brute(points: &[(f64, f64)]) -> Vec<usize> {
+        let fin = |p: &(f64, f64)| p.0.is_finite() && p.1.is_finite();
+        let mut v: Vec<usize> = (0..points.len())
+            .filter(|&i| fin(&points[i]))
+            .filter(|&i| {
+                let p = points[i];
+                !points.iter().any(|q| {
+                    fin(q) && q.0 <= p.0 && q.1 <= p.1 && (q.0 < p.0 || q.1 < p.1)
+                })
+            })
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn small_cases() {
+        assert!(pareto_front(&[]).is_empty());
+        assert_eq!(pareto_front(&[(1.0, 1.0)]), vec![0]);
+        // (2,2) is dominated by (1,1); (0.5,3) and (3,0.5) trade off.
+        let pts = [(2.0, 2.0), (1.0, 1.0), (0.5, 3.0), (3.0, 0.5)];
+        assert_eq!(pareto_front(&pts), vec![2, 1, 3]);
+        // Same x, higher y is dominated; identical points are both kept.
+        assert_eq!(pareto_front(&[(1.0, 2.0), (1.0, 1.0)]), vec![1]);
+        assert_eq!(pareto_front(&[(1.0, 1.0), (1.0, 1.0)]), vec![0, 1]);
+        // Non-finite points are ignored.
+        assert_eq!(pareto_front(&[(f64::NAN, 0.0), (1.0, f64::INFINITY), (2.0, 2.0)]), vec![2]);
+    }
+
+    #[test]
+    fn matches_brute_force() {
+        // Tiny LCG so the test needs no extra dependency; coarse grid to force ties.
+        let mut s: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut next = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 33) % 8) as f64
+        };
+        for n in 0..40 {
+            let pts: Vec<(f64, f64)> = (0..n).map(|_| (next(), next())).collect();
+            let mut got = pareto_front(&pts);
+            // Sorted by x on output.
+            assert!(got.windows(2).all(|w| pts[w[0]].0 <= pts[w[1]].0));
+            got.sort();
+            assert_eq!(got, brute(&pts), "points {pts:?}");
+        }
+    }
+}
