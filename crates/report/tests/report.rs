@@ -90,7 +90,10 @@ fn full_report() {
     let heat = tmp.path().join("cache_heat.png");
     std::fs::write(&heat, b"not really a png, copied verbatim").unwrap();
     let rows = synthetic(Some(&heat));
-    let out = tmp.path().join("reports/exp");
+    // BVHLAB_REPORT_KEEP=<dir> keeps the rendered report for a look.
+    let out = std::env::var_os("BVHLAB_REPORT_KEEP")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| tmp.path().join("reports/exp"));
     let index = write_report(&out, "exp <1>", &rows, reference_dir()).unwrap();
     assert_eq!(index, out.join("index.html"));
     let html = std::fs::read_to_string(&index).unwrap();

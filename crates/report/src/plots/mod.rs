@@ -91,8 +91,18 @@ pub fn color(i: usize) -> RGBColor {
     RGBColor(r, g, b)
 }
 
-/// Compact number for labels: 3-4 significant digits, scientific outside [1e-3, 1e6).
+/// Compact number for labels: 3-4 significant digits, scientific outside [1e-3, 1e6), no trailing
+/// zeros.
 pub fn fmt_num(v: f64) -> String {
+    let s = fmt_fixed(v);
+    if s.contains('.') && !s.contains('e') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
+fn fmt_fixed(v: f64) -> String {
     if !v.is_finite() {
         return format!("{v}");
     }
@@ -149,5 +159,21 @@ impl plotters::coord::ranged1d::Ranged for Categories {
 
     fn range(&self) -> std::ops::Range<f64> {
         0.0..self.0.max(1) as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fmt_num;
+
+    #[test]
+    fn numbers() {
+        assert_eq!(fmt_num(0.001), "0.001");
+        assert_eq!(fmt_num(20.0), "20");
+        assert_eq!(fmt_num(138.25), "138.2");
+        assert_eq!(fmt_num(0.012345), "0.0123");
+        assert_eq!(fmt_num(1234567.0), "1.23e6");
+        assert_eq!(fmt_num(f64::NAN), "NaN");
+        assert_eq!(fmt_num(0.0), "0");
     }
 }

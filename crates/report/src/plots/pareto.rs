@@ -77,12 +77,13 @@ impl Figure for ParetoFigure {
         // Log x when the times span more than a decade (and are all positive), so that fast
         // builders are not squashed against the axis.
         if xmin > 0.0 && xmax / xmin > 10.0 {
-            let xr = (xmin / 1.5..xmax * 1.5).log_scale();
+            // Extra room on the right for the point labels.
+            let xr = (xmin / 1.5..xmax * 4.0).log_scale();
             self.draw_with(root, &title, xr, yr, "build + compact time [s] (log)")
         } else {
-            let xpad = if xmax > xmin { 0.08 * (xmax - xmin) } else { 0.05 * xmax.abs().max(1e-6) };
+            let xpad = if xmax > xmin { 0.1 * (xmax - xmin) } else { 0.05 * xmax.abs().max(1e-6) };
             let lo = if xmin >= 0.0 { 0.0 } else { xmin - xpad };
-            let xr = lo..(xmax + xpad);
+            let xr = lo..(xmax + 3.0 * xpad);
             self.draw_with(root, &title, xr, yr, "build + compact time [s]")
         }
     }

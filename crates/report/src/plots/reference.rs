@@ -79,11 +79,11 @@ impl Figure for ReferenceFigure {
                 ])
                 .map_err(err)?;
         }
-        // Legend by hand: two swatches in the upper right.
+        // Legend by hand: two swatches in the upper right, beside the caption (never over bars).
         let (w, _) = root.dim_in_pixel();
-        let x0 = w as i32 - 230;
+        let x0 = w as i32 - 190;
         for (k, (name, col)) in [("ours", OURS), ("Frantal 2019 thesis", PAPER)].iter().enumerate() {
-            let y = 50 + 20 * k as i32;
+            let y = 6 + 18 * k as i32;
             root.draw(&Rectangle::new([(x0, y), (x0 + 16, y + 12)], col.filled())).map_err(err)?;
             root.draw(&Text::new(*name, (x0 + 22, y), ("sans-serif", 13).into_font())).map_err(err)?;
         }
