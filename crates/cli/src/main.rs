@@ -1,1 +1,236 @@
-fn main() {}
+//! `bvhlab`: sweep experiments, evaluate one chain, inspect the cache, list scene generators.
+use bvhlab_pipeline::{
+    run::Runner, store, sweep::sweep, ChainSpec, Error, Experiment, RaySpec, Registry, Result, Store,
+};
+use clap::{Parser, Subcommand};
+use std::collections::BTreeMap;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+
+#[derive(Parser)]
+#[command(name = "bvhlab", version, about = "BVH research workbench: cached stage pipeline, sweeps and reports")]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Run every chain of an experiment file and write its report to reports/<name>/.
+    Sweep {
+        experiment: PathBuf,
+        /// Cache directory (default: $BVHLAB_CACHE, else ./cache).
+        #[arg(long)]
+        cache: Option<PathBuf>,
+        /// Rayon threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Report directory (default: reports/<experiment name>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Run one chain and print its result.
+    Eval {
+        /// Scene file (.obj / .obj.gz) or `gen:NAME[:k=v,...]`.
+        #[arg(long)]
+        scene: String,
+        /// Builder name (see `bvhlab scenes` / error message for the list).
+        #[arg(long)]
+        build: String,
+        /// Compaction after the build: `none` or `collapse`.
+        #[arg(long, default_value = "none")]
+        compact: String,
+        /// Builder or cost parameter, e.g. bins=16, leaf=1, c_t=3, c_i=2 (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Ray set to trace: primary[:WxH], shadow[:WxH] or random[:COUNT].
+        #[arg(long)]
+        rays: Option<String>,
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Timed runs per stage; the median is reported.
+        #[arg(long, default_value_t = 5)]
+        repeat: u32,
+        #[arg(long, conflicts_with = "no_cache")]
+        cache: Option<PathBuf>,
+        /// Use a throw-away cache.
+        #[arg(long)]
+        no_cache: bool,
+        /// Print one JSON object (otherwise `key: value` lines).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Inspect or clean the artifact cache.
+    Cache {
+        #[command(subcommand)]
+        op: CacheOp,
+        #[arg(long, global = true)]
+        cache: Option<PathBuf>,
+    },
+    /// List scene generators and their parameters.
+    Scenes,
+}
+
+#[derive(Subcommand, Clone, Copy)]
+enum CacheOp {
+    /// List complete entries.
+    Ls,
+    /// Check every file against its checksum; bad files are quarantined (recomputed next run).
+    Verify,
+    /// Remove temporary, quarantined and incomplete files.
+    Gc,
+}
+
+fn reference_dir(experiment: &Path) -> Option<PathBuf> {
+    let mut candidates = vec![PathBuf::from("../shared/reference")];
+    if let Some(dir) = experiment.parent() {
+        candidates.push(dir.join("../../shared/reference"));
+        candidates.push(dir.join("../shared/reference"));
+    }
+    candidates.into_iter().find(|p| p.is_dir())
+}
+
+fn parse_sets(set: &[String]) -> Result<BTreeMap<String, String>> {
+    let mut out = BTreeMap::new();
+    for s in set {
+        let (k, v) = s
+            .split_once('=')
+            .ok_or_else(|| Error::input(format!("--set `{s}`: expected KEY=VALUE (e.g. bins=16)")))?;
+        out.insert(k.trim().to_string(), v.trim().to_string());
+    }
+    Ok(out)
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.cmd {
+        Cmd::Sweep { experiment, cache, threads, out } => {
+            let exp = Experiment::load(&experiment, &Registry::standard())?;
+            let store = Store::open(store::resolve_root(cache.as_deref()))?;
+            let mut runner = Runner::new(store);
+            let progress = std::io::stderr().is_terminal();
+            let res = bvhlab_pipeline::with_threads(threads, || sweep(&exp, &mut runner, progress))??;
+            let out_dir = out.unwrap_or_else(|| PathBuf::from("reports").join(&exp.name));
+            let reference = reference_dir(&experiment);
+            let report = bvhlab_report::write_report(&out_dir, &exp.name, &res.rows, reference.as_deref())
+                .map_err(|e| Error::internal(format!("report: {e}")))?;
+            let summary = serde_json::json!({
+                "experiment": exp.name,
+                "computed": res.counts.computed,
+                "cached": res.counts.cached,
+                "per_stage": res.counts.per_stage,
+                "rows": res.rows.len(),
+                "report": report.to_string_lossy(),
+                "seconds": res.seconds,
+            });
+            println!("{summary}");
+            Ok(())
+        }
+        Cmd::Eval { scene, build, compact, set, rays, threads, repeat, cache, no_cache, json } => {
+            let mut spec = ChainSpec::new(&scene, &build);
+            spec.params = parse_sets(&set)?;
+            spec.compact = compact;
+            spec.repeat = repeat;
+            spec.rays = rays.as_deref().map(RaySpec::parse).transpose()?;
+            let store = if no_cache { Store::temporary()? } else { Store::open(store::resolve_root(cache.as_deref()))? };
+            let mut runner = Runner::new(store);
+            let row = bvhlab_pipeline::with_threads(threads, || runner.run_chain(&spec, "eval"))??;
+            let mut v = serde_json::to_value(&row).map_err(|e| Error::internal(e.to_string()))?;
+            if let Some(o) = v.as_object_mut() {
+                o.insert("computed".into(), runner.counts.computed.into());
+                o.insert("cached".into(), runner.counts.cached.into());
+                o.insert("threads".into(), threads.unwrap_or_else(rayon::current_num_threads).into());
+                if no_cache {
+                    // The throw-away cache (and the heat map in it) is deleted on exit.
+                    o.insert("heatmap".into(), serde_json::Value::Null);
+                }
+            }
+            if json {
+                println!("{v}");
+            } else if let Some(o) = v.as_object() {
+                for (k, val) in o {
+                    println!("{k}: {val}");
+                }
+            }
+            Ok(())
+        }
+        Cmd::Cache { op, cache } => {
+            let store = Store::open(store::resolve_root(cache.as_deref()))?;
+            match op {
+                CacheOp::Ls => {
+                    let entries = store.entries();
+                    let mut per_stage: BTreeMap<String, (u64, u64)> = BTreeMap::new();
+                    for m in &entries {
+                        let key = bvhlab_pipeline::Key::from_hex(&m.key);
+                        let bytes: u64 = m
+                            .files
+                            .keys()
+                            .filter_map(|ext| key.map(|k| store.path(&m.stage, &k, ext)))
+                            .filter_map(|p| std::fs::metadata(p).ok())
+                            .map(|md| md.len())
+                            .sum();
+                        let e = per_stage.entry(m.stage.clone()).or_default();
+                        e.0 += 1;
+                        e.1 += bytes;
+                        let params: Vec<String> = m.params.iter().map(|(k, v)| format!("{k}={v}")).collect();
+                        println!("{:8} {} {:>10} {}", m.stage, &m.key[..16], bytes, params.join(","));
+                    }
+                    for (stage, (n, b)) in per_stage {
+                        println!("# {stage}: {n} entries, {b} bytes");
+                    }
+                    println!("# cache: {}", store.root().display());
+                    Ok(())
+                }
+                CacheOp::Verify => {
+                    let r = store.verify();
+                    for b in &r.bad {
+                        println!("bad: {b}");
+                    }
+                    println!("{}", serde_json::json!({"entries": r.entries, "files_ok": r.files_ok, "bad": r.bad.len()}));
+                    if r.bad.is_empty() {
+                        Ok(())
+                    } else {
+                        Err(Error::internal(format!("{} corrupt file(s) quarantined; they will be recomputed", r.bad.len())))
+                    }
+                }
+                CacheOp::Gc => {
+                    let r = store.gc();
+                    println!("{}", serde_json::json!({"removed_files": r.removed_files, "removed_bytes": r.removed_bytes}));
+                    Ok(())
+                }
+            }
+        }
+        Cmd::Scenes => {
+            for g in bvhlab_geom::gen::generators() {
+                println!("gen:{}  {}", g.name, g.about);
+                for (name, default, about) in g.params {
+                    println!("    {name}={default}  {about}");
+                }
+            }
+            println!("files: path to .obj or .obj.gz");
+            Ok(())
+        }
+    }
+}
+
+fn main() {
+    let cli = Cli::parse();
+    // Last resort: a panic inside a stage is an internal error, reported like any other.
+    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(cli)));
+    let code = match outcome {
+        Ok(Ok(())) => 0,
+        Ok(Err(e)) => {
+            eprintln!("error: {e}");
+            e.exit_code()
+        }
+        Err(p) => {
+            let msg = p
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "panic".into());
+            eprintln!("error: internal: {msg}");
+            1
+        }
+    };
+    std::process::exit(code);
+}

@@ -1,0 +1,159 @@
+//! End-to-end tests of the `bvhlab` binary.
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn bvhlab(args: &[&str], cwd: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bvhlab")).args(args).current_dir(cwd).env_remove("BVHLAB_CACHE").output().unwrap()
+}
+
+fn stdout_json(o: &Output) -> serde_json::Value {
+    let s = String::from_utf8_lossy(&o.stdout);
+    let last = s.lines().last().unwrap_or_else(|| panic!("no stdout; stderr: {}", String::from_utf8_lossy(&o.stderr)));
+    serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {last}"))
+}
+
+const REQUIRED: [&str; 13] = [
+    "triangles",
+    "dropped_triangles",
+    "sah_cost",
+    "build_seconds",
+    "valid",
+    "inner_nodes",
+    "leaves",
+    "refs_per_leaf",
+    "inner_sa_ratio",
+    "leaf_sa_ratio",
+    "bytes",
+    "bvh_hash",
+    "computed",
+];
+
+#[test]
+fn eval_json_has_required_keys() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = bvhlab(&["eval", "--scene", "gen:sphere", "--build", "binned-sah", "--json", "--no-cache"], dir.path());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v = stdout_json(&o);
+    for k in REQUIRED {
+        assert!(v.get(k).is_some(), "missing {k}: {v}");
+    }
+    assert!(v["triangles"].as_u64().unwrap() > 1000);
+    assert_eq!(v["valid"], true);
+    assert_eq!(v["bvh_hash"].as_str().unwrap().len(), 64);
+    assert!(v["sah_cost"].as_f64().unwrap() > 0.0);
+    assert!(!dir.path().join("cache").exists(), "--no-cache writes no cache");
+}
+
+#[test]
+fn eval_with_rays_and_cache() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = [
+        "eval", "--scene", "gen:sphere:n=2000", "--build", "sweep-sah", "--compact", "collapse", "--set", "leaf=1",
+        "--rays", "primary:64x48", "--repeat", "2", "--cache", "c", "--json",
+    ];
+    let o = bvhlab(&args, dir.path());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v = stdout_json(&o);
+    for k in ["rays", "hits", "traversal_steps_per_ray", "intersections_per_ray", "trace_seconds", "mrays_per_s"] {
+        assert!(v[k].is_number(), "{k}: {v}");
+    }
+    assert_eq!(v["rays"], 64 * 48);
+    assert!(v["hits"].as_u64().unwrap() > 0);
+    assert_eq!(v["computed"], 4);
+    let heat = v["heatmap"].as_str().unwrap();
+    assert!(dir.path().join(heat).is_file() || Path::new(heat).is_file(), "{heat}");
+    // Warm: identical result, nothing computed.
+    let w = stdout_json(&bvhlab(&args, dir.path()));
+    assert_eq!(w["computed"], 0);
+    assert_eq!(w["cached"], 4);
+    assert_eq!(w["bvh_hash"], v["bvh_hash"]);
+    assert_eq!(w["trace_seconds"], v["trace_seconds"]);
+    let o = bvhlab(&["cache", "verify", "--cache", "c"], dir.path());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stdout));
+    let o = bvhlab(&["cache", "ls", "--cache", "c"], dir.path());
+    assert!(String::from_utf8_lossy(&o.stdout).contains("measure"));
+}
+
+#[test]
+fn same_bvh_at_any_thread_count() {
+    let dir = tempfile::tempdir().unwrap();
+    for build in ["spatial-median", "sweep-sah", "binned-sah"] {
+        let hash = |t: &str| {
+            let o = bvhlab(
+                &["eval", "--scene", "gen:hairball:n=20000", "--build", build, "--threads", t, "--repeat", "1", "--no-cache", "--json"],
+                dir.path(),
+            );
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            stdout_json(&o)["bvh_hash"].as_str().unwrap().to_string()
+        };
+        assert_eq!(hash("1"), hash("2"), "{build}");
+    }
+}
+
+fn assert_input_error(o: &Output, needles: &[&str]) {
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "stderr: {err}");
+    assert!(err.starts_with("error: "), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "`{n}` not in: {err}");
+    }
+}
+
+#[test]
+fn bad_input_exits_2_with_a_clear_message() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("bad.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nv 1 2 banana\n").unwrap();
+    let o = bvhlab(&["eval", "--scene", "bad.obj", "--build", "sweep-sah", "--json"], dir.path());
+    assert_input_error(&o, &["bad.obj:5"]);
+    let o = bvhlab(&["eval", "--scene", "missing.obj", "--build", "sweep-sah", "--json"], dir.path());
+    assert_input_error(&o, &["missing.obj"]);
+    let o = bvhlab(&["eval", "--scene", "gen:sphere", "--build", "magic", "--no-cache"], dir.path());
+    assert_input_error(&o, &["magic", "binned-sah", "sweep-sah", "spatial-median"]);
+    let o = bvhlab(&["eval", "--scene", "gen:sphere", "--build", "binned-sah", "--set", "bins=1", "--no-cache"], dir.path());
+    assert_input_error(&o, &["bins"]);
+    let o = bvhlab(&["eval", "--scene", "gen:sphere", "--build", "sweep-sah", "--set", "bins=8", "--no-cache"], dir.path());
+    assert_input_error(&o, &["bins", "leaf"]);
+    let o = bvhlab(&["eval", "--scene", "gen:nope", "--build", "sweep-sah", "--no-cache"], dir.path());
+    assert_input_error(&o, &["nope"]);
+    let o = bvhlab(&["eval", "--scene", "gen:sphere", "--build", "sweep-sah", "--rays", "laser", "--no-cache"], dir.path());
+    assert_input_error(&o, &["laser"]);
+    std::fs::write(dir.path().join("x.toml"), "name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\nbuild = 3\nbins = [4,\n").unwrap();
+    let o = bvhlab(&["sweep", "x.toml", "--cache", "c"], dir.path());
+    assert_input_error(&o, &["x.toml:"]);
+    // The failed runs left the cache untouched (only the OBJ attempt could have created it).
+    assert!(!dir.path().join("c").join("load").exists());
+}
+
+#[test]
+fn sweep_cold_then_warm() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("tiny.toml"),
+        r#"name = "tiny"
+scenes = ["gen:sphere:n=2000", "gen:city:blocks=5"]
+repeat = 2
+[[chain]]
+build = "binned-sah"
+bins = [4, 8]
+[[chain]]
+build = "sweep-sah"
+compact = "collapse"
+[rays]
+sets = ["primary:32x32", "random:1000"]
+"#,
+    )
+    .unwrap();
+    let args = ["sweep", "tiny.toml", "--cache", "c", "--out", "rep"];
+    let o = bvhlab(&args, dir.path());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let cold = stdout_json(&o);
+    // Per scene: 1 load + 3 builds + 1 compact + 3 finals x 2 ray sets.
+    assert_eq!(cold["computed"], 2 * (1 + 3 + 1 + 6));
+    assert_eq!(cold["cached"], 0);
+    assert_eq!(cold["rows"], 2 * 3 * 2);
+    assert!(Path::new(cold["report"].as_str().unwrap()).is_absolute() || dir.path().join(cold["report"].as_str().unwrap()).exists());
+    let warm = stdout_json(&bvhlab(&args, dir.path()));
+    assert_eq!(warm["computed"], 0);
+    assert_eq!(warm["cached"], cold["computed"]);
+}
