@@ -12,6 +12,8 @@ pub enum Kind {
     UInt { min: u32, max: u32 },
     /// Finite float > 0.
     PositiveFloat,
+    /// One of a fixed set of words.
+    Choice(&'static [&'static str]),
 }
 
 #[derive(Clone, Debug)]
@@ -111,6 +113,10 @@ fn canonical(spec: &ParamSpec, value: &str) -> Result<String, String> {
             Ok(x) if x.is_finite() && x > 0.0 => Ok(fmt_f32(x)),
             _ => Err("a finite number > 0".to_string()),
         },
+        Kind::Choice(words) => match words.iter().find(|w| **w == v) {
+            Some(w) => Ok(w.to_string()),
+            None => Err(format!("one of {}", words.join(", "))),
+        },
     }
 }
 
@@ -153,8 +159,23 @@ impl Registry {
                             in_label: true,
                         },
                         LEAF,
+                        ParamSpec {
+                            name: "centroid_stop",
+                            default: "split-axis",
+                            kind: Kind::Choice(&["split-axis", "any-axis"]),
+                            about: "stop when the centroid extent is < 1e-7 along the split axis (default) or along any \
+                                    axis (the thesis' literal rule, 3.1.1; reproduces its BIN column)",
+                            in_label: false,
+                        },
                     ],
-                    run: |b, c, r| bvhlab_build::binned_sah::build(b, c, r.u32("bins"), &r.config()),
+                    run: |b, c, r| {
+                        use bvhlab_build::binned_sah::{build_with_termination, CentroidTermination};
+                        let stop = match r.params.get("centroid_stop").map(String::as_str) {
+                            Some("any-axis") => CentroidTermination::AnyAxis,
+                            _ => CentroidTermination::SplitAxis,
+                        };
+                        build_with_termination(b, c, r.u32("bins"), &r.config(), stop)
+                    },
                 },
             ],
         }
@@ -220,7 +241,7 @@ mod tests {
         let b = r.resolve("binned-sah", &raw(&[("bins", "16"), ("c_t", "3.0"), ("leaf", "02")]), CostParams::default()).unwrap();
         assert_eq!(a, b);
         assert_eq!(a.key_params(), b.key_params());
-        assert_eq!(crate::key::params_string(&a.params), "bins=16,leaf=2");
+        assert_eq!(crate::key::params_string(&a.params), "bins=16,centroid_stop=split-axis,leaf=2");
     }
 
     #[test]
