@@ -5,6 +5,7 @@
 pub mod aabb;
 pub mod gen;
 pub mod obj;
+pub mod rng;
 pub mod scene;
 
 pub use aabb::Aabb;

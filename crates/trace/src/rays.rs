@@ -156,25 +156,7 @@ pub fn shadow_rays(primary: &[Ray], hit_t: &[f32], light: Vec3) -> Vec<Ray> {
     out
 }
 
-/// SplitMix64 (Steele, Lea, Flood 2014): tiny, self-contained, good enough to sample directions.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct SplitMix64(pub u64);
-
-impl SplitMix64 {
-    #[inline]
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1) with 24 random bits (exactly representable in f32).
-    #[inline]
-    pub fn next_f32(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
-    }
-}
+use bvhlab_geom::rng::SplitMix64;
 
 /// Number of equal-area latitude bands the sphere is partitioned into (thesis 4.4, "10 bands").
 pub const RANDOM_RAY_BANDS: u32 = 10;
@@ -184,9 +166,9 @@ pub const RANDOM_RAY_BANDS: u32 = 10;
 /// equal-area bands, and cycling through them stratifies the samples without biasing them.
 fn sphere_point(rng: &mut SplitMix64, band: u32) -> Vec3 {
     let nb = RANDOM_RAY_BANDS as f32;
-    let z = -1.0 + 2.0 * (band as f32 + rng.next_f32()) / nb;
+    let z = -1.0 + 2.0 * (band as f32 + rng.f32()) / nb;
     let z = z.clamp(-1.0, 1.0);
-    let phi = std::f32::consts::TAU * rng.next_f32();
+    let phi = std::f32::consts::TAU * rng.f32();
     let s = (1.0 - z * z).max(0.0).sqrt();
     Vec3::new(s * phi.cos(), s * phi.sin(), z)
 }

@@ -15,21 +15,7 @@ pub const BUILDERS: [(&str, BuildFn); 3] = [
     ("sweep-sah", sweep_sah::build),
 ];
 
-/// SplitMix64: a tiny deterministic generator, so the tests need no RNG crate.
-pub struct Rng(pub u64);
-impl Rng {
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1).
-    pub fn f32(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
+pub use bvhlab_geom::rng::SplitMix64 as Rng;
 
 pub fn centers_of(boxes: &[Aabb]) -> Vec<Vec3> {
     boxes.iter().map(|b| b.center()).collect()

@@ -3,22 +3,11 @@
 use bvhlab_bvh::{Bvh, Node};
 use bvhlab_geom::{Aabb, Triangle, Vec3};
 
-/// SplitMix64, duplicated here so tests do not depend on crate internals.
-pub struct Rng(pub u64);
-impl Rng {
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    pub fn f32(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    pub fn vec(&mut self) -> Vec3 {
-        Vec3::new(self.f32(), self.f32(), self.f32())
-    }
+pub use bvhlab_geom::rng::SplitMix64 as Rng;
+
+/// A uniform point in the unit cube.
+pub fn rand_vec(r: &mut Rng) -> Vec3 {
+    Vec3::new(r.f32(), r.f32(), r.f32())
 }
 
 /// `n` small random triangles in the unit cube (sizes up to `size`).
@@ -26,10 +15,10 @@ pub fn random_triangles(n: usize, size: f32, seed: u64) -> Vec<Triangle> {
     let mut r = Rng(seed);
     (0..n)
         .map(|_| {
-            let c = r.vec();
-            let a = c + (r.vec() - 0.5) * size;
-            let b = c + (r.vec() - 0.5) * size;
-            let d = c + (r.vec() - 0.5) * size;
+            let c = rand_vec(&mut r);
+            let a = c + (rand_vec(&mut r) - 0.5) * size;
+            let b = c + (rand_vec(&mut r) - 0.5) * size;
+            let d = c + (rand_vec(&mut r) - 0.5) * size;
             Triangle::new(a, b, d)
         })
         .collect()
