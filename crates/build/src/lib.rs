@@ -6,12 +6,19 @@
 //! explicit task stack. Tasks are independent sub-ranges, so a later parallel driver can hand them to
 //! threads (thesis 3.1.2, "vertical" scheme) without touching the split decisions.
 
+pub mod aac;
 pub mod binned_sah;
+pub mod bottomup;
 pub(crate) mod boxa;
+pub mod lbvh;
+pub mod ploc;
 pub(crate) mod primref;
 pub mod spatial_median;
+pub mod sorted;
 pub mod sweep_sah;
 pub(crate) mod topdown;
+
+pub use sorted::SortedCodes;
 
 use bvhlab_bvh::CostParams;
 use serde::{Deserialize, Serialize};

@@ -36,6 +36,28 @@ pub struct ResultRow {
     pub valid: bool,
     pub bvh_hash: String,
     pub build_seconds: f64,
+    /// Encoder of the encode stage (`morton`, `emc64-sort`, `emc64-var`); absent for builders that
+    /// take no codes (the top-down ones).
+    pub encoder: Option<String>,
+    /// Canonical encoder parameters, `k=v` joined by `,` (e.g. `bits=10,bounds=scene,grid_bits=0`);
+    /// `bits=auto` is resolved for the builder (e.g. `bits=auto:aac`).
+    pub encode_params: Option<String>,
+    /// Median seconds of the encode stage (codes + sort).
+    pub encode_seconds: Option<f64>,
+    /// Meaningful bits per code and the fraction of primitives sharing their code with the previous
+    /// one in sorted order (precision lost to quantization; Riemersma 2024).
+    pub code_bits: Option<u32>,
+    pub duplicate_code_fraction: Option<f64>,
+    /// encode_seconds + build_seconds: the whole construction, what thesis table 11 compares.
+    pub total_build_seconds: f64,
+    /// Worker threads the stages ran with (rayon pool size); timings depend on it, results do not.
+    pub threads: u32,
+    /// Focus-box metrics (experiment `[focus]`, for scenes whose interesting part is dwarfed by an
+    /// outlier or a huge ground plane): the triangles whose centroid lies inside the focus box, and
+    /// the SAH cost (thesis eq. 4, same c_t/c_i) of the smallest subtree holding all of them,
+    /// normalized by the surface area of those triangles' own bounds.
+    pub focus_triangles: Option<u64>,
+    pub focus_sah_cost: Option<f64>,
     /// Median seconds of the compaction stage (0 when none).
     pub compact_seconds: f64,
     /// Ray set (`primary:800x800`, `shadow:800x800`, `random:100000`), absent without a measure stage.
