@@ -1,4 +1,5 @@
-//! `bvhlab`: sweep experiments, evaluate one chain, inspect the cache, list scene generators.
+//! `bvhlab`: sweep experiments, evaluate one chain, inspect the cache, list scene generators and
+//! methods (builders, encoders).
 use bvhlab_pipeline::{
     run::Runner, store, sweep::sweep, ChainSpec, Error, Experiment, RaySpec, Registry, Result, Store,
 };
@@ -34,13 +35,17 @@ enum Cmd {
         /// Scene file (.obj / .obj.gz) or `gen:NAME[:k=v,...]`.
         #[arg(long)]
         scene: String,
-        /// Builder name (see `bvhlab scenes` / error message for the list).
+        /// Builder name (see `bvhlab methods`).
         #[arg(long)]
         build: String,
+        /// Encoder for the bottom-up builders (lbvh, aac, ploc): morton (default), emc64-sort, emc64-var.
+        #[arg(long)]
+        encode: Option<String>,
         /// Compaction after the build: `none` or `collapse`.
         #[arg(long, default_value = "none")]
         compact: String,
-        /// Builder or cost parameter, e.g. bins=16, leaf=1, c_t=3, c_i=2 (repeatable).
+        /// Builder, encoder or cost parameter, e.g. bins=16, leaf=1, radius=25, bits=10,
+        /// bounds=concise, c_t=3 (repeatable; routed by name).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
         /// Ray set to trace: primary[:WxH], shadow[:WxH] or random[:COUNT].
@@ -48,6 +53,9 @@ enum Cmd {
         rays: Option<String>,
         #[arg(long)]
         threads: Option<usize>,
+        /// Focus box `minx,miny,minz,maxx,maxy,maxz`: reports focus_triangles and focus_sah_cost.
+        #[arg(long, allow_hyphen_values = true)]
+        focus: Option<String>,
         /// Timed runs per stage; the median is reported.
         #[arg(long, default_value_t = 5)]
         repeat: u32,
@@ -69,6 +77,8 @@ enum Cmd {
     },
     /// List scene generators and their parameters.
     Scenes,
+    /// List builders and encoders with their parameters (defaults in brackets).
+    Methods,
 }
 
 #[derive(Subcommand, Clone, Copy)]
@@ -125,9 +135,11 @@ fn run(cli: Cli) -> Result<()> {
             println!("{summary}");
             Ok(())
         }
-        Cmd::Eval { scene, build, compact, set, rays, threads, repeat, cache, no_cache, json } => {
+        Cmd::Eval { scene, build, encode, compact, set, rays, focus, threads, repeat, cache, no_cache, json } => {
             let mut spec = ChainSpec::new(&scene, &build);
+            spec.encode = encode;
             spec.params = parse_sets(&set)?;
+            spec.focus = focus.as_deref().map(bvhlab_pipeline::stages::parse_focus).transpose()?;
             spec.compact = compact;
             spec.repeat = repeat;
             spec.rays = rays.as_deref().map(RaySpec::parse).transpose()?;
@@ -207,6 +219,23 @@ fn run(cli: Cli) -> Result<()> {
                 }
             }
             println!("files: path to .obj or .obj.gz");
+            Ok(())
+        }
+        Cmd::Methods => {
+            let reg = Registry::standard();
+            let show = |p: &bvhlab_pipeline::registry::ParamSpec| println!("    {}=[{}]  {}", p.name, p.default, p.about);
+            println!("builders:");
+            for b in &reg.builders {
+                let kind = if b.codes.is_some() { "  (takes codes: --encode)" } else { "" };
+                println!("  {}  {}{kind}", b.name, b.about);
+                b.params.iter().for_each(show);
+            }
+            println!("  every builder also takes c_t=[3] and c_i=[2] (SAH costs, thesis 2.2.2)");
+            println!("encoders (for builders that take codes):");
+            for e in &reg.encoders {
+                println!("  {}  {}", e.name, e.about);
+                e.params.iter().for_each(show);
+            }
             Ok(())
         }
     }

@@ -157,3 +157,75 @@ sets = ["primary:32x32", "random:1000"]
     assert_eq!(warm["computed"], 0);
     assert_eq!(warm["cached"], cold["computed"]);
 }
+
+#[test]
+fn eval_focus_and_encode_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    // gen:sphere is the unit sphere: a box around its upper cap holds some of its triangles.
+    let o = bvhlab(
+        &["eval", "--scene", "gen:sphere:n=2000", "--build", "binned-sah", "--focus", "-1,0.5,-1,1,1,1", "--repeat", "1",
+          "--no-cache", "--json"],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v = stdout_json(&o);
+    let n = v["focus_triangles"].as_u64().unwrap();
+    assert!(n > 0 && n < v["triangles"].as_u64().unwrap(), "{v}");
+    assert!(v["focus_sah_cost"].as_f64().unwrap() > 0.0, "{v}");
+    assert!(v["encoder"].is_null() && v["code_bits"].is_null(), "top-down builders have no encoder: {v}");
+    for k in ["encode_params", "encode_seconds", "duplicate_code_fraction", "total_build_seconds", "threads"] {
+        assert!(v.get(k).is_some(), "missing {k}: {v}");
+    }
+
+    let o = bvhlab(&["eval", "--scene", "gen:sphere", "--build", "sweep-sah", "--encode", "morton", "--no-cache"], dir.path());
+    assert_input_error(&o, &["sweep-sah", "takes no codes", "lbvh"]);
+    let o = bvhlab(&["eval", "--scene", "gen:sphere", "--build", "lbvh", "--encode", "hilbert", "--no-cache"], dir.path());
+    assert_input_error(&o, &["hilbert", "morton", "emc64-sort", "emc64-var"]);
+    let o = bvhlab(
+        &["eval", "--scene", "gen:sphere", "--build", "ploc", "--encode", "emc64-var", "--set", "bits=10", "--no-cache"],
+        dir.path(),
+    );
+    assert_input_error(&o, &["bits", "bounds, grid_bits"]);
+    let o = bvhlab(&["eval", "--scene", "gen:sphere", "--build", "binned-sah", "--focus", "1,1,1,0,0,0", "--no-cache"], dir.path());
+    assert_input_error(&o, &["focus"]);
+    let o = bvhlab(&["eval", "--scene", "gen:sphere", "--build", "binned-sah", "--focus", "1,2,3", "--no-cache"], dir.path());
+    assert_input_error(&o, &["six numbers"]);
+}
+
+#[test]
+fn methods_lists_builders_and_encoders() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = bvhlab(&["methods"], dir.path());
+    assert!(o.status.success());
+    let s = String::from_utf8_lossy(&o.stdout);
+    for n in ["binned-sah", "lbvh", "aac", "ploc", "radius=[10]", "morton", "emc64-var", "bits=[auto]", "grid_bits"] {
+        assert!(s.contains(n), "`{n}` missing in:\n{s}");
+    }
+}
+
+/// Needs the bottom-up builders (lbvh, aac, ploc) from bvhlab-build.
+#[test]
+fn eval_bottom_up_with_encoder_prints_encode_fields() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = [
+        "eval", "--scene", "gen:sphere:n=2000", "--build", "ploc", "--encode", "emc64-var", "--set", "bounds=concise",
+        "--set", "radius=25", "--repeat", "2", "--cache", "c", "--json",
+    ];
+    let o = bvhlab(&args, dir.path());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v = stdout_json(&o);
+    assert_eq!(v["encoder"], "emc64-var");
+    assert_eq!(v["encode_params"], "bounds=concise,grid_bits=0");
+    assert_eq!(v["build_params"], "radius=25");
+    assert_eq!(v["method"], "ploc radius=25 \u{b7} emc64-var bounds=concise");
+    let bits = v["code_bits"].as_u64().unwrap();
+    assert!((32..=64).contains(&bits), "EMC-64 codes: {v}");
+    assert_eq!(v["valid"], true);
+    assert_eq!(v["computed"], 3, "load, encode, build");
+    let total = v["total_build_seconds"].as_f64().unwrap();
+    let parts = v["encode_seconds"].as_f64().unwrap() + v["build_seconds"].as_f64().unwrap();
+    assert!((total - parts).abs() < 1e-12, "{v}");
+    let w = stdout_json(&bvhlab(&args, dir.path()));
+    assert_eq!((w["computed"].as_u64(), w["cached"].as_u64()), (Some(0), Some(3)));
+    assert_eq!(w["bvh_hash"], v["bvh_hash"]);
+}

@@ -1,9 +1,13 @@
 //! Experiment files (TOML): scenes x chains (parameter grids, cartesian product) x ray sets.
 //! The format is documented at the top of experiments/quick.toml.
+//!
+//! A `[[chain]]` table's keys other than `build`, `compact` and `encode` are parameters, routed by
+//! name to the builder or the encoder (see `Registry::resolve_chain`). `encode` (value or array)
+//! is one more axis of the cartesian product. `[focus]` / `[focuses."SCENE"]` set a focus box.
 use crate::error::{Error, Result};
 use crate::registry::Registry;
-use crate::stages::{check_compact, ChainSpec, RaySpec, SceneSource};
-use bvhlab_bvh::CostParams;
+use crate::stages::{check_compact, focus_box, ChainSpec, RaySpec, SceneSource};
+use bvhlab_bvh::{Aabb, CostParams};
 use bvhlab_geom::Vec3;
 use bvhlab_trace::Camera;
 use serde::Deserialize;
@@ -26,6 +30,16 @@ struct FileToml {
     camera: Option<CameraToml>,
     #[serde(default)]
     cameras: BTreeMap<String, CameraToml>,
+    focus: Option<Spanned<FocusToml>>,
+    #[serde(default)]
+    focuses: BTreeMap<String, Spanned<FocusToml>>,
+}
+
+#[derive(Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FocusToml {
+    min: [f32; 3],
+    max: [f32; 3],
 }
 
 #[derive(Deserialize)]
@@ -65,6 +79,8 @@ impl CameraToml {
 #[derive(Clone, Debug, PartialEq)]
 pub struct ChainPoint {
     pub build: String,
+    /// Encoder (None: the builder's default, `morton`, for code-using builders).
+    pub encode: Option<String>,
     pub compact: String,
     pub params: BTreeMap<String, String>,
 }
@@ -83,6 +99,9 @@ pub struct Experiment {
     pub camera: Option<Camera>,
     /// Per-scene camera overrides, keyed by the scene spec as written.
     pub cameras: BTreeMap<String, Camera>,
+    /// Focus box for every scene (`[focus]`), overridden per scene by `[focuses."SCENE"]`.
+    pub focus: Option<Aabb>,
+    pub focuses: BTreeMap<String, Aabb>,
 }
 
 fn line_col(src: &str, offset: usize) -> (usize, usize) {
@@ -202,9 +221,12 @@ impl Experiment {
             for mut c in combos {
                 let build = c.remove("build").unwrap_or_default();
                 let compact = c.remove("compact").unwrap_or_else(|| "none".into());
+                let encode = c.remove("encode");
                 check_compact(&compact).map_err(|e| err(e.message().to_string()))?;
-                registry.resolve(&build, &c, cost).map_err(|e| err(e.message().to_string()))?;
-                points.push(ChainPoint { build, compact, params: c });
+                registry
+                    .resolve_chain(&build, encode.as_deref(), &c, cost)
+                    .map_err(|e| err(e.message().to_string()))?;
+                points.push(ChainPoint { build, encode, compact, params: c });
             }
         }
         let mut rays = Vec::new();
@@ -221,6 +243,18 @@ impl Experiment {
                 )));
             }
         }
+        let focus_of = |f: &Spanned<FocusToml>, what: &str| {
+            let v = f.get_ref();
+            focus_box(v.min, v.max).map_err(|why| at(f.span().start, format!("{what}: {why}")))
+        };
+        let focus = f.focus.as_ref().map(|x| focus_of(x, "[focus]")).transpose()?;
+        let mut focuses = BTreeMap::new();
+        for (k, v) in &f.focuses {
+            if !scenes.iter().any(|(s, _)| s == k) {
+                return Err(at(v.span().start, format!("[focuses.\"{k}\"] names a scene not in `scenes`")));
+            }
+            focuses.insert(k.clone(), focus_of(v, &format!("[focuses.\"{k}\"]"))?);
+        }
         Ok(Experiment {
             name: f.name,
             path: path.to_path_buf(),
@@ -231,6 +265,8 @@ impl Experiment {
             rays,
             camera: f.camera.as_ref().map(CameraToml::camera),
             cameras: f.cameras.iter().map(|(k, v)| (k.clone(), v.camera())).collect(),
+            focus,
+            focuses,
         })
     }
 
@@ -246,12 +282,14 @@ impl Experiment {
                         scene: spec.clone(),
                         source: source.clone(),
                         build: p.build.clone(),
+                        encode: p.encode.clone(),
                         params: p.params.clone(),
                         cost: self.cost,
                         compact: p.compact.clone(),
                         rays: *r,
                         camera: self.cameras.get(spec).copied().or(self.camera),
                         repeat: self.repeat,
+                        focus: self.focuses.get(spec).copied().or(self.focus),
                     });
                 }
             }
@@ -298,6 +336,7 @@ fov = 30
         assert_eq!(e.points.len(), 3 * 2 + 2);
         assert_eq!(e.points[0], ChainPoint {
             build: "binned-sah".into(),
+            encode: None,
             compact: "none".into(),
             params: [("bins".to_string(), "4".to_string())].into()
         });
@@ -338,5 +377,80 @@ fov = 30
         let e = parse("name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\nbuild = \"sweep-sah\"\n[rays]\nsets = [\"laser\"]\n")
             .unwrap_err();
         assert!(e.message().starts_with("exp.toml:6:"), "{e}");
+    }
+
+    #[test]
+    fn encoders_are_an_axis_and_params_are_routed() {
+        let e = parse(
+            r#"
+name = "m"
+scenes = ["gen:outlier:e=20", "gen:city"]
+[[chain]]
+build = "ploc"
+radius = [10, 25]
+encode = ["morton", "emc64-var"]
+bounds = "concise"
+[[chain]]
+build = "aac"
+preset = ["hq", "fast"]
+bits = 8
+[[chain]]
+build = "binned-sah"
+[focus]
+min = [-1.0, -1.0, -1.0]
+max = [1, 1, 1]
+[focuses."gen:city"]
+min = [0.0, 0.0, 0.0]
+max = [16.0, 4.0, 16.0]
+"#,
+        )
+        .unwrap();
+        assert_eq!(e.points.len(), 2 * 2 + 2 + 1);
+        let encs: Vec<Option<&str>> = e.points.iter().map(|p| p.encode.as_deref()).collect();
+        assert_eq!(encs[..4].iter().filter(|x| **x == Some("emc64-var")).count(), 2);
+        assert_eq!(encs[4..], [None, None, None]);
+        assert_eq!(e.points[0].params.get("bounds").map(String::as_str), Some("concise"));
+        assert!(!e.points[0].params.contains_key("encode"));
+        let reg = Registry::standard();
+        for p in &e.points[..4] {
+            let (b, enc) = reg.resolve_chain(&p.build, p.encode.as_deref(), &p.params, e.cost).unwrap();
+            assert!(b.params.contains_key("radius") && !b.params.contains_key("bounds"));
+            assert_eq!(enc.unwrap().params["bounds"], "concise");
+        }
+        let (_, enc) = reg.resolve_chain("aac", None, &e.points[4].params, e.cost).unwrap();
+        assert_eq!(enc.unwrap().params["bits"], "8");
+        let chains = e.chains();
+        let outlier = chains.iter().find(|c| c.scene == "gen:outlier:e=20").unwrap();
+        assert_eq!(outlier.focus, Some(Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0))));
+        let city = chains.iter().find(|c| c.scene == "gen:city" && c.build == "ploc").unwrap();
+        assert_eq!(city.focus.unwrap().max, Vec3::new(16.0, 4.0, 16.0));
+        assert_eq!(city.encode.as_deref(), Some("morton"));
+    }
+
+    #[test]
+    fn encoder_errors_name_the_chain() {
+        let head = "name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\n";
+        let cases: [(&str, &[&str]); 6] = [
+            ("build = \"ploc\"\nencode = \"emc64-var\"\nbits = 10\n", &["`bits`", "emc64-var", "bounds, grid_bits"]),
+            ("build = \"sweep-sah\"\nencode = \"morton\"\n", &["sweep-sah", "takes no codes"]),
+            ("build = \"lbvh\"\nencode = [\"morton\", \"zcurve\"]\n", &["zcurve", "emc64-sort"]),
+            ("build = \"binned-sah\"\nbounds = \"concise\"\n", &["bounds", "encoder parameter"]),
+            ("build = \"aac\"\npreset = \"fast\"\ndelta = 7\n", &["preset=fast sets delta=4"]),
+            ("build = \"lbvh\"\ngrid_bits = 5\n", &["grid_bits", "0, 6, 9, 12"]),
+        ];
+        for (chain, needles) in cases {
+            let e = parse(&format!("{head}{chain}")).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{chain}");
+            assert!(e.message().starts_with("exp.toml:3:") && e.message().contains("chain #1"), "{e}");
+            for n in needles {
+                assert!(e.message().contains(n), "`{n}` not in {e}");
+            }
+        }
+        let e = parse(&format!("{head}build = \"lbvh\"\n[focus]\nmin = [1, 1, 1]\nmax = [0, 0, 0]\n")).unwrap_err();
+        assert!(e.exit_code() == 2 && e.message().contains("[focus]"), "{e}");
+        let e = parse(&format!("{head}build = \"lbvh\"\n[focuses.\"gen:city\"]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n")).unwrap_err();
+        assert!(e.exit_code() == 2 && e.message().contains("not in `scenes`"), "{e}");
+        let e = parse(&format!("{head}build = \"lbvh\"\n[focus]\nmin = [0, 0, 0]\n")).unwrap_err();
+        assert!(e.exit_code() == 2 && e.message().contains("max"), "{e}");
     }
 }

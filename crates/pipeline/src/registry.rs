@@ -1,9 +1,16 @@
-//! Builder names -> function + parameter schema (defaults, validation). Cost constants c_t / c_i
-//! are parameters of every builder: they drive the SAH leaf-vs-split test (thesis 2.3.1), the
-//! compaction and the metrics (thesis eq. 4), so they are part of the build key.
+//! Builder and encoder names -> function + parameter schema (defaults, validation). Cost constants
+//! c_t / c_i are parameters of every builder: they drive the SAH leaf-vs-split test (thesis 2.3.1),
+//! the compaction and the metrics (thesis eq. 4), so they are part of the build key.
+//!
+//! Bottom-up builders (lbvh, aac, ploc) take primitives sorted by code from the encode stage; their
+//! chains name an encoder (default `morton`). Parameters of a chain are routed by name: a name the
+//! builder has goes to the builder, a name the encoder has goes to the encoder (the two schemas share
+//! no names), anything else is an input error listing both.
 use crate::error::{Error, Result};
+use bvhlab_build::aac::AacConfig;
+use bvhlab_build::{SortedCodes, TopDownConfig};
 use bvhlab_bvh::{Aabb, Bvh, CostParams, Vec3};
-use bvhlab_build::TopDownConfig;
+use bvhlab_morton::{AutoFor, Bits, BoundsMode, EncodeConfig, Scheme};
 use std::collections::BTreeMap;
 
 #[derive(Clone, Copy, Debug)]
@@ -12,8 +19,12 @@ pub enum Kind {
     UInt { min: u32, max: u32 },
     /// Finite float > 0.
     PositiveFloat,
+    /// Finite float >= 0.
+    NonNegativeFloat,
     /// One of a fixed set of words.
     Choice(&'static [&'static str]),
+    /// `auto` (resolved for the consuming builder, e.g. `auto:aac`) or an integer in `min..=max`.
+    AutoOrUInt { min: u32, max: u32 },
 }
 
 #[derive(Clone, Debug)]
@@ -39,8 +50,14 @@ impl Resolved {
     pub fn u32(&self, name: &str) -> u32 {
         self.params.get(name).and_then(|v| v.parse().ok()).unwrap_or(0)
     }
+    pub fn f32(&self, name: &str) -> f32 {
+        self.params.get(name).and_then(|v| v.parse().ok()).unwrap_or(0.0)
+    }
     pub fn config(&self) -> TopDownConfig {
         TopDownConfig { leaf: self.u32("leaf"), cost: self.cost }
+    }
+    pub fn aac_config(&self) -> AacConfig {
+        AacConfig { delta: self.u32("delta"), epsilon: self.f32("epsilon") }
     }
     /// Builder parameters plus `c_t`, `c_i`: what keys the build stage.
     pub fn key_params(&self) -> BTreeMap<String, String> {
@@ -51,15 +68,30 @@ impl Resolved {
     }
 }
 
+/// An encoder with its parameters resolved for one builder.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ResolvedEncoder {
+    pub encoder: String,
+    /// Canonical parameters, defaults included; `bits=auto` is stored as `auto:<builder>`, because
+    /// each builder's paper picks its own code length.
+    pub params: BTreeMap<String, String>,
+    pub config: EncodeConfig,
+}
+
 impl Registry {
     /// Display label: `binned-sah bins=16`, plus parameters changed from their defaults.
     pub fn label(&self, r: &Resolved) -> String {
         let mut parts = vec![r.builder.clone()];
         if let Ok(info) = self.get(&r.builder) {
-            for spec in &info.params {
-                let v = r.params.get(spec.name).cloned().unwrap_or_default();
-                if spec.in_label || v != spec.default {
-                    parts.push(format!("{}={v}", spec.name));
+            match info.label {
+                Some(f) => parts = vec![f(r)],
+                None => {
+                    for spec in &info.params {
+                        let v = r.params.get(spec.name).cloned().unwrap_or_default();
+                        if spec.in_label || v != spec.default {
+                            parts.push(format!("{}={v}", spec.name));
+                        }
+                    }
                 }
             }
         }
@@ -72,9 +104,31 @@ impl Registry {
         }
         parts.join(" ")
     }
+
+    /// Encoder label: `emc64-var bounds=concise` (parameters changed from their defaults; `bits`
+    /// only when fixed).
+    pub fn encoder_label(&self, e: &ResolvedEncoder) -> String {
+        let mut parts = vec![e.encoder.clone()];
+        if let Ok(info) = self.encoder(&e.encoder) {
+            for spec in &info.params {
+                let v = e.params.get(spec.name).cloned().unwrap_or_default();
+                let is_default = v == spec.default || (spec.default == "auto" && v.starts_with("auto"));
+                if spec.in_label || !is_default {
+                    parts.push(format!("{}={v}", spec.name));
+                }
+            }
+        }
+        parts.join(" ")
+    }
 }
 
-pub type BuildFn = fn(&[Aabb], &[Vec3], &Resolved) -> Bvh;
+/// Boxes, centres, and (for bottom-up builders) the primitives sorted by code.
+pub type BuildFn = fn(&[Aabb], &[Vec3], Option<&SortedCodes>, &Resolved) -> Bvh;
+/// Cross-parameter resolution after defaults are filled (e.g. AAC presets): gets the user-given
+/// parameters and the canonical ones, may rewrite the latter; `Err` is the reason.
+pub type FinishFn = fn(&BTreeMap<String, String>, &mut BTreeMap<String, String>) -> Result<(), String>;
+/// Custom builder label (without cost constants).
+pub type LabelFn = fn(&Resolved) -> String;
 
 #[derive(Clone)]
 pub struct BuilderInfo {
@@ -82,6 +136,40 @@ pub struct BuilderInfo {
     pub about: &'static str,
     pub params: Vec<ParamSpec>,
     pub run: BuildFn,
+    /// `Some`: the builder consumes sorted codes from the encode stage; an encoder's `bits=auto`
+    /// resolves to this builder's code length.
+    pub codes: Option<AutoFor>,
+    /// The builder returns single-primitive leaves and is followed by the SAH compaction
+    /// (`bvhlab_bvh::collapse`, thesis 3.8 / Bittner 3.6) inside the timed build: the thesis counts
+    /// the compaction as part of AAC / PLOC construction.
+    pub collapse: bool,
+    pub finish: Option<FinishFn>,
+    pub label: Option<LabelFn>,
+}
+
+impl BuilderInfo {
+    /// A top-down builder over boxes and centres (no codes, no compaction, plain label).
+    pub fn top_down(name: &'static str, about: &'static str, params: Vec<ParamSpec>, run: BuildFn) -> BuilderInfo {
+        BuilderInfo { name, about, params, run, codes: None, collapse: false, finish: None, label: None }
+    }
+
+    /// What the build stage produces: the builder, then (bottom-up builders) the SAH compaction.
+    pub fn construct(&self, boxes: &[Aabb], centers: &[Vec3], codes: Option<&SortedCodes>, r: &Resolved) -> Bvh {
+        let bvh = (self.run)(boxes, centers, codes, r);
+        if self.collapse {
+            bvhlab_bvh::collapse::collapse(&bvh, r.cost)
+        } else {
+            bvh
+        }
+    }
+}
+
+#[derive(Clone)]
+pub struct EncoderInfo {
+    pub name: &'static str,
+    pub about: &'static str,
+    pub scheme: Scheme,
+    pub params: Vec<ParamSpec>,
 }
 
 pub const COST_PARAMS: [ParamSpec; 2] = [
@@ -97,12 +185,28 @@ const LEAF: ParamSpec = ParamSpec {
     in_label: false,
 };
 
+const BOUNDS: ParamSpec = ParamSpec {
+    name: "bounds",
+    default: "scene",
+    kind: Kind::Choice(&["scene", "centroids", "concise"]),
+    about: "quantization frame: scene box, centroid box, or concise bounds (Riemersma eq. 15)",
+    in_label: false,
+};
+
+const GRID_BITS: ParamSpec = ParamSpec {
+    name: "grid_bits",
+    default: "0",
+    kind: Kind::Choice(&["0", "6", "9", "12"]),
+    about: "occupation grid bits (Riemersma 3.2.2; 0 = off)",
+    in_label: false,
+};
+
 /// Shortest round-trip form, so `3`, `3.0` and `3.00` share a key.
 pub fn fmt_f32(v: f32) -> String {
     format!("{v}")
 }
 
-fn canonical(spec: &ParamSpec, value: &str) -> Result<String, String> {
+fn canonical(spec: &ParamSpec, value: &str, auto: Option<AutoFor>) -> Result<String, String> {
     let v = value.trim();
     match spec.kind {
         Kind::UInt { min, max } => match v.parse::<u64>() {
@@ -113,16 +217,86 @@ fn canonical(spec: &ParamSpec, value: &str) -> Result<String, String> {
             Ok(x) if x.is_finite() && x > 0.0 => Ok(fmt_f32(x)),
             _ => Err("a finite number > 0".to_string()),
         },
+        Kind::NonNegativeFloat => match v.parse::<f32>() {
+            // `+ 0.0` turns -0 into 0, so both spellings share a key.
+            Ok(x) if x.is_finite() && x >= 0.0 => Ok(fmt_f32(x + 0.0)),
+            _ => Err("a finite number >= 0".to_string()),
+        },
         Kind::Choice(words) => match words.iter().find(|w| **w == v) {
             Some(w) => Ok(w.to_string()),
             None => Err(format!("one of {}", words.join(", "))),
         },
+        Kind::AutoOrUInt { min, max } => {
+            let want = || format!("`auto` or an integer in {min}..={max}");
+            let auto_name = auto.map(auto_name);
+            if v == "auto" || Some(v) == auto_name.map(|a| format!("auto:{a}")).as_deref() {
+                return auto_name.map(|a| format!("auto:{a}")).ok_or_else(want);
+            }
+            match v.parse::<u64>() {
+                Ok(n) if n >= min as u64 && n <= max as u64 => Ok(n.to_string()),
+                _ => Err(want()),
+            }
+        }
+    }
+}
+
+fn auto_name(a: AutoFor) -> &'static str {
+    match a {
+        AutoFor::Aac => "aac",
+        AutoFor::Lbvh => "lbvh",
+        AutoFor::Ploc => "ploc",
+    }
+}
+
+fn names(specs: &[ParamSpec]) -> String {
+    if specs.is_empty() {
+        return "(none)".into();
+    }
+    specs.iter().map(|p| p.name).collect::<Vec<_>>().join(", ")
+}
+
+/// The pipeline guarantees codes for code-using builders (`BuilderInfo::codes`).
+fn sorted<'a>(s: Option<&'a SortedCodes<'a>>) -> &'a SortedCodes<'a> {
+    s.expect("the pipeline passes sorted codes to every builder with `codes: Some(..)`")
+}
+
+/// AAC: `preset=hq|fast` fills delta / epsilon (thesis table 2); explicit values must agree with it.
+/// The canonical parameters are delta and epsilon only, so `preset=hq` and `delta=20,epsilon=0.1`
+/// share a key.
+fn aac_finish(raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, String>) -> Result<(), String> {
+    let preset = params.remove("preset").unwrap_or_else(|| "none".into());
+    let cfg = match preset.as_str() {
+        "hq" => AacConfig::HQ,
+        "fast" => AacConfig::FAST,
+        _ => return Ok(()),
+    };
+    for (name, val) in [("delta", cfg.delta.to_string()), ("epsilon", fmt_f32(cfg.epsilon))] {
+        if raw.contains_key(name) && params.get(name) != Some(&val) {
+            return Err(format!(
+                "preset={preset} sets {name}={val}, but {name}={} was given; give either the preset or delta/epsilon",
+                raw[name]
+            ));
+        }
+        params.insert(name.to_string(), val);
+    }
+    Ok(())
+}
+
+fn aac_label(r: &Resolved) -> String {
+    let c = r.aac_config();
+    if c == AacConfig::HQ {
+        "aac HQ".into()
+    } else if c == AacConfig::FAST {
+        "aac fast".into()
+    } else {
+        format!("aac delta={} epsilon={}", c.delta, fmt_f32(c.epsilon))
     }
 }
 
 #[derive(Clone)]
 pub struct Registry {
     pub builders: Vec<BuilderInfo>,
+    pub encoders: Vec<EncoderInfo>,
 }
 
 impl Default for Registry {
@@ -133,61 +307,170 @@ impl Default for Registry {
 
 impl Registry {
     pub fn standard() -> Registry {
-        Registry {
-            builders: vec![
-                BuilderInfo {
-                    name: "spatial-median",
-                    about: "split the largest axis at its middle (Kay and Kajiya 1986; thesis 3.2)",
-                    params: vec![LEAF],
-                    run: |b, c, r| bvhlab_build::spatial_median::build(b, c, &r.config()),
-                },
-                BuilderInfo {
-                    name: "sweep-sah",
-                    about: "full-sweep SAH over all three axes (thesis 3.3.1)",
-                    params: vec![LEAF],
-                    run: |b, c, r| bvhlab_build::sweep_sah::build(b, c, &r.config()),
-                },
-                BuilderInfo {
-                    name: "binned-sah",
-                    about: "binned SAH (Wald 2007; thesis 3.1.1)",
-                    params: vec![
-                        ParamSpec {
-                            name: "bins",
-                            default: "16",
-                            kind: Kind::UInt { min: 2, max: 4096 },
-                            about: "number of bins per axis",
-                            in_label: true,
-                        },
-                        LEAF,
-                        ParamSpec {
-                            name: "centroid_stop",
-                            default: "split-axis",
-                            kind: Kind::Choice(&["split-axis", "any-axis"]),
-                            about: "stop when the centroid extent is < 1e-7 along the split axis (default) or along any \
-                                    axis (the thesis' literal rule, 3.1.1; reproduces its BIN column)",
-                            in_label: false,
-                        },
-                    ],
-                    run: |b, c, r| {
-                        use bvhlab_build::binned_sah::{build_with_termination, CentroidTermination};
-                        let stop = match r.params.get("centroid_stop").map(String::as_str) {
-                            Some("any-axis") => CentroidTermination::AnyAxis,
-                            _ => CentroidTermination::SplitAxis,
-                        };
-                        build_with_termination(b, c, r.u32("bins"), &r.config(), stop)
+        Registry { builders: Self::standard_builders(), encoders: Self::standard_encoders() }
+    }
+
+    pub fn standard_builders() -> Vec<BuilderInfo> {
+        vec![
+            BuilderInfo::top_down(
+                "spatial-median",
+                "split the largest axis at its middle (Kay and Kajiya 1986; thesis 3.2)",
+                vec![LEAF],
+                |b, c, _, r| bvhlab_build::spatial_median::build(b, c, &r.config()),
+            ),
+            BuilderInfo::top_down(
+                "sweep-sah",
+                "full-sweep SAH over all three axes (thesis 3.3.1)",
+                vec![LEAF],
+                |b, c, _, r| bvhlab_build::sweep_sah::build(b, c, &r.config()),
+            ),
+            BuilderInfo::top_down(
+                "binned-sah",
+                "binned SAH (Wald 2007; thesis 3.1.1)",
+                vec![
+                    ParamSpec {
+                        name: "bins",
+                        default: "16",
+                        kind: Kind::UInt { min: 2, max: 4096 },
+                        about: "number of bins per axis",
+                        in_label: true,
                     },
+                    LEAF,
+                    ParamSpec {
+                        name: "centroid_stop",
+                        default: "split-axis",
+                        kind: Kind::Choice(&["split-axis", "any-axis"]),
+                        about: "stop when the centroid extent is < 1e-7 along the split axis (default) or along any \
+                                axis (the thesis' literal rule, 3.1.1; reproduces its BIN column)",
+                        in_label: false,
+                    },
+                ],
+                |b, c, _, r| {
+                    use bvhlab_build::binned_sah::{build_with_termination, CentroidTermination};
+                    let stop = match r.params.get("centroid_stop").map(String::as_str) {
+                        Some("any-axis") => CentroidTermination::AnyAxis,
+                        _ => CentroidTermination::SplitAxis,
+                    };
+                    build_with_termination(b, c, r.u32("bins"), &r.config(), stop)
                 },
-            ],
-        }
+            ),
+            BuilderInfo {
+                name: "lbvh",
+                about: "LBVH: binary radix tree over sorted codes (Karras 2012; thesis 2.3.4), then SAH compaction",
+                params: vec![],
+                run: |b, _, s, _| bvhlab_build::lbvh::build(b, sorted(s)),
+                codes: Some(AutoFor::Lbvh),
+                collapse: true,
+                finish: None,
+                label: None,
+            },
+            BuilderInfo {
+                name: "aac",
+                about: "approximate agglomerative clustering (Gu et al. 2013; thesis 3.2), then SAH compaction",
+                params: vec![
+                    ParamSpec {
+                        name: "preset",
+                        default: "none",
+                        kind: Kind::Choice(&["hq", "fast", "none"]),
+                        about: "hq: delta=20 epsilon=0.1, fast: delta=4 epsilon=0.2 (thesis table 2); none: use delta/epsilon",
+                        in_label: false,
+                    },
+                    ParamSpec {
+                        name: "delta",
+                        default: "20",
+                        kind: Kind::UInt { min: 1, max: 1 << 20 },
+                        about: "constraint-tree leaf threshold delta (thesis 3.2)",
+                        in_label: true,
+                    },
+                    ParamSpec {
+                        name: "epsilon",
+                        default: "0.1",
+                        kind: Kind::NonNegativeFloat,
+                        about: "cluster-count reduction exponent term epsilon (thesis 3.2)",
+                        in_label: true,
+                    },
+                ],
+                run: |b, _, s, r| bvhlab_build::aac::build(b, sorted(s), &r.aac_config()),
+                codes: Some(AutoFor::Aac),
+                collapse: true,
+                finish: Some(aac_finish),
+                label: Some(aac_label),
+            },
+            BuilderInfo {
+                name: "ploc",
+                about: "parallel locally-ordered clustering (Meister and Bittner 2018; thesis 3.6), then SAH compaction",
+                params: vec![ParamSpec {
+                    name: "radius",
+                    default: "10",
+                    kind: Kind::UInt { min: 1, max: 1 << 16 },
+                    about: "nearest-neighbour search radius r (thesis table 6: 10, 25, 100)",
+                    in_label: true,
+                }],
+                run: |b, _, s, r| {
+                    bvhlab_build::ploc::build(b, sorted(s), &bvhlab_build::ploc::PlocConfig { radius: r.u32("radius") })
+                },
+                codes: Some(AutoFor::Ploc),
+                collapse: true,
+                finish: None,
+                label: None,
+            },
+        ]
+    }
+
+    pub fn standard_encoders() -> Vec<EncoderInfo> {
+        vec![
+            EncoderInfo {
+                name: "morton",
+                about: "Morton code, bits per axis interleaved x y z (thesis 2.3.4)",
+                scheme: Scheme::Morton,
+                params: vec![
+                    ParamSpec {
+                        name: "bits",
+                        default: "auto",
+                        kind: Kind::AutoOrUInt { min: 1, max: 21 },
+                        about: "bits per axis; auto = the builder's own choice (aac: ceil(log4 n), lbvh: 10, ploc: 20)",
+                        in_label: false,
+                    },
+                    BOUNDS,
+                    GRID_BITS,
+                ],
+            },
+            EncoderInfo {
+                name: "emc64-sort",
+                about: "Extended Morton code, 64 bits, size bit every 4th bit, axes by extent (Vinkler 2017; thesis 3.7.1)",
+                scheme: Scheme::Emc64Sort,
+                params: vec![BOUNDS, GRID_BITS],
+            },
+            EncoderInfo {
+                name: "emc64-var",
+                about: "Extended Morton code, 64 bits, size bit every 7th bit, others on the largest axis (thesis 3.7.1)",
+                scheme: Scheme::Emc64Var,
+                params: vec![BOUNDS, GRID_BITS],
+            },
+        ]
     }
 
     pub fn names(&self) -> Vec<&'static str> {
         self.builders.iter().map(|b| b.name).collect()
     }
 
+    pub fn encoder_names(&self) -> Vec<&'static str> {
+        self.encoders.iter().map(|e| e.name).collect()
+    }
+
+    fn code_builder_names(&self) -> String {
+        self.builders.iter().filter(|b| b.codes.is_some()).map(|b| b.name).collect::<Vec<_>>().join(", ")
+    }
+
     pub fn get(&self, name: &str) -> Result<&BuilderInfo> {
         self.builders.iter().find(|b| b.name == name).ok_or_else(|| {
             Error::input(format!("unknown builder `{name}`; valid builders: {}", self.names().join(", ")))
+        })
+    }
+
+    pub fn encoder(&self, name: &str) -> Result<&EncoderInfo> {
+        self.encoders.iter().find(|e| e.name == name).ok_or_else(|| {
+            Error::input(format!("unknown encoder `{name}`; valid encoders: {}", self.encoder_names().join(", ")))
         })
     }
 
@@ -200,8 +483,13 @@ impl Registry {
         };
         for k in raw.keys() {
             if !info.params.iter().chain(COST_PARAMS.iter()).any(|p| p.name == k) {
+                let hint = if info.codes.is_none() && self.encoders.iter().any(|e| e.params.iter().any(|p| p.name == k)) {
+                    format!(" (`{k}` is an encoder parameter; `{builder}` is top-down and takes no codes)")
+                } else {
+                    String::new()
+                };
                 return Err(Error::input(format!(
-                    "unknown parameter `{k}` for builder `{builder}`; valid parameters: {}",
+                    "unknown parameter `{k}` for builder `{builder}`; valid parameters: {}{hint}",
                     valid()
                 )));
             }
@@ -209,20 +497,104 @@ impl Registry {
         let mut params = BTreeMap::new();
         for spec in &info.params {
             let given = raw.get(spec.name).map(String::as_str).unwrap_or(spec.default);
-            let v = canonical(spec, given).map_err(|want| {
+            let v = canonical(spec, given, None).map_err(|want| {
                 Error::input(format!("bad value `{given}` for `{}` of `{builder}`: expected {want}", spec.name))
             })?;
             params.insert(spec.name.to_string(), v);
         }
+        if let Some(finish) = info.finish {
+            finish(raw, &mut params).map_err(|why| Error::input(format!("builder `{builder}`: {why}")))?;
+        }
         let mut cost_v = [cost.c_t, cost.c_i];
         for (i, spec) in COST_PARAMS.iter().enumerate() {
             if let Some(given) = raw.get(spec.name) {
-                let v = canonical(spec, given)
+                let v = canonical(spec, given, None)
                     .map_err(|want| Error::input(format!("bad value `{given}` for `{}`: expected {want}", spec.name)))?;
                 cost_v[i] = v.parse().unwrap_or(cost_v[i]);
             }
         }
         Ok(Resolved { builder: builder.to_string(), params, cost: CostParams { c_t: cost_v[0], c_i: cost_v[1] } })
+    }
+
+    /// Validates an encoder and its parameters for a code-using builder (`auto` = that builder's
+    /// code length).
+    pub fn resolve_encoder(&self, encoder: &str, raw: &BTreeMap<String, String>, auto: AutoFor) -> Result<ResolvedEncoder> {
+        let info = self.encoder(encoder)?;
+        for k in raw.keys() {
+            if !info.params.iter().any(|p| p.name == k) {
+                return Err(Error::input(format!(
+                    "unknown parameter `{k}` for encoder `{encoder}`; valid parameters: {}",
+                    names(&info.params)
+                )));
+            }
+        }
+        let mut params = BTreeMap::new();
+        for spec in &info.params {
+            let given = raw.get(spec.name).map(String::as_str).unwrap_or(spec.default);
+            let v = canonical(spec, given, Some(auto)).map_err(|want| {
+                Error::input(format!("bad value `{given}` for `{}` of encoder `{encoder}`: expected {want}", spec.name))
+            })?;
+            params.insert(spec.name.to_string(), v);
+        }
+        let bits = match params.get("bits").map(String::as_str) {
+            // EMC codes have no bits parameter (always 64 bits); the field is not read for them,
+            // and a constant keeps the config (and so the output) independent of the builder.
+            None => Bits::Fixed(10),
+            Some(b) if b.starts_with("auto") => Bits::Auto(auto),
+            Some(b) => Bits::Fixed(b.parse().unwrap_or(10)),
+        };
+        let bounds = match params.get("bounds").map(String::as_str) {
+            Some("centroids") => BoundsMode::Centroids,
+            Some("concise") => BoundsMode::Concise,
+            _ => BoundsMode::Scene,
+        };
+        let grid_bits = params.get("grid_bits").and_then(|g| g.parse().ok()).unwrap_or(0);
+        let config = EncodeConfig { scheme: info.scheme, bits, bounds, grid_bits };
+        Ok(ResolvedEncoder { encoder: encoder.to_string(), params, config })
+    }
+
+    /// Resolves one chain's builder and (for code-using builders) encoder; `raw` holds the
+    /// parameters of both, routed by name. `encode` given for a top-down builder is an error.
+    pub fn resolve_chain(
+        &self,
+        builder: &str,
+        encode: Option<&str>,
+        raw: &BTreeMap<String, String>,
+        cost: CostParams,
+    ) -> Result<(Resolved, Option<ResolvedEncoder>)> {
+        let info = self.get(builder)?;
+        let Some(auto) = info.codes else {
+            if let Some(e) = encode {
+                return Err(Error::input(format!(
+                    "builder `{builder}` is top-down and takes no codes, so `encode = \"{e}\"` does not apply; \
+                     encoders feed the bottom-up builders: {}",
+                    self.code_builder_names()
+                )));
+            }
+            return Ok((self.resolve(builder, raw, cost)?, None));
+        };
+        let encoder = encode.unwrap_or("morton");
+        let einfo = self.encoder(encoder)?;
+        let (mut braw, mut eraw) = (BTreeMap::new(), BTreeMap::new());
+        for (k, v) in raw {
+            if info.params.iter().chain(COST_PARAMS.iter()).any(|p| p.name == k) {
+                braw.insert(k.clone(), v.clone());
+            } else if einfo.params.iter().any(|p| p.name == k) {
+                eraw.insert(k.clone(), v.clone());
+            } else {
+                let mut bp: Vec<&str> = info.params.iter().map(|p| p.name).collect();
+                bp.extend(COST_PARAMS.iter().map(|p| p.name));
+                return Err(Error::input(format!(
+                    "unknown parameter `{k}` for builder `{builder}` with encoder `{encoder}`; builder parameters: {}; \
+                     encoder parameters: {}",
+                    bp.join(", "),
+                    names(&einfo.params)
+                )));
+            }
+        }
+        let r = self.resolve(builder, &braw, cost)?;
+        let e = self.resolve_encoder(encoder, &eraw, auto)?;
+        Ok((r, Some(e)))
     }
 }
 
@@ -262,5 +634,73 @@ mod tests {
         let r = Registry::standard();
         let a = r.resolve("spatial-median", &raw(&[("c_t", "1.5")]), CostParams { c_t: 9.0, c_i: 7.0 }).unwrap();
         assert_eq!(a.cost, CostParams { c_t: 1.5, c_i: 7.0 });
+    }
+
+    #[test]
+    fn aac_presets_share_keys_with_their_values() {
+        let r = Registry::standard();
+        let c = CostParams::default();
+        let hq = r.resolve("aac", &raw(&[("preset", "hq")]), c).unwrap();
+        let explicit = r.resolve("aac", &raw(&[("delta", "20"), ("epsilon", "0.10")]), c).unwrap();
+        let default = r.resolve("aac", &raw(&[]), c).unwrap();
+        assert_eq!(hq, explicit);
+        assert_eq!(hq, default);
+        assert_eq!(crate::key::params_string(&hq.params), "delta=20,epsilon=0.1");
+        assert_eq!(r.label(&hq), "aac HQ");
+        let fast = r.resolve("aac", &raw(&[("preset", "fast"), ("delta", "4")]), c).unwrap();
+        assert_eq!(fast.aac_config(), AacConfig::FAST);
+        assert_eq!(r.label(&fast), "aac fast");
+        let other = r.resolve("aac", &raw(&[("delta", "8"), ("epsilon", "0")]), c).unwrap();
+        assert_eq!(r.label(&other), "aac delta=8 epsilon=0");
+        let e = r.resolve("aac", &raw(&[("preset", "fast"), ("delta", "20")]), c).unwrap_err();
+        assert!(e.message().contains("preset=fast sets delta=4") && e.exit_code() == 2, "{e}");
+        assert!(r.resolve("aac", &raw(&[("delta", "0")]), c).is_err());
+        assert!(r.resolve("aac", &raw(&[("epsilon", "-0.1")]), c).is_err());
+        assert!(r.resolve("aac", &raw(&[("preset", "best")]), c).is_err());
+    }
+
+    #[test]
+    fn encoder_routing_and_auto_bits() {
+        let r = Registry::standard();
+        let c = CostParams::default();
+        let (b, e) = r.resolve_chain("ploc", None, &raw(&[("radius", "25"), ("bounds", "concise")]), c).unwrap();
+        let e = e.unwrap();
+        assert_eq!(crate::key::params_string(&b.params), "radius=25");
+        assert_eq!(e.encoder, "morton");
+        assert_eq!(crate::key::params_string(&e.params), "bits=auto:ploc,bounds=concise,grid_bits=0");
+        assert_eq!(e.config.bits, Bits::Auto(AutoFor::Ploc));
+        assert_eq!(e.config.bounds, BoundsMode::Concise);
+        assert_eq!(r.encoder_label(&e), "morton bounds=concise");
+        let (_, e) = r.resolve_chain("aac", Some("morton"), &raw(&[("bits", "auto")]), c).unwrap();
+        assert_eq!(e.as_ref().unwrap().params["bits"], "auto:aac");
+        let (_, e) = r.resolve_chain("lbvh", Some("morton"), &raw(&[("bits", "10"), ("grid_bits", "9")]), c).unwrap();
+        let e = e.unwrap();
+        assert_eq!((e.config.bits, e.config.grid_bits), (Bits::Fixed(10), 9));
+        assert_eq!(r.encoder_label(&e), "morton bits=10 grid_bits=9");
+        // EMC encoders have no bits; their key does not depend on the builder.
+        let (_, a) = r.resolve_chain("aac", Some("emc64-var"), &raw(&[]), c).unwrap();
+        let (_, p) = r.resolve_chain("ploc", Some("emc64-var"), &raw(&[]), c).unwrap();
+        assert_eq!(a.as_ref().unwrap().params, p.as_ref().unwrap().params);
+        assert_eq!(a.unwrap().config, p.unwrap().config);
+        // Top-down builders have no encoder.
+        assert_eq!(r.resolve_chain("binned-sah", None, &raw(&[]), c).unwrap().1, None);
+    }
+
+    #[test]
+    fn encoder_errors() {
+        let r = Registry::standard();
+        let c = CostParams::default();
+        let e = r.resolve_chain("ploc", Some("emc64-var"), &raw(&[("bits", "10")]), c).unwrap_err();
+        assert!(e.message().contains("`bits`") && e.message().contains("bounds, grid_bits"), "{e}");
+        let e = r.resolve_chain("sweep-sah", Some("morton"), &raw(&[]), c).unwrap_err();
+        assert!(e.message().contains("top-down") && e.message().contains("lbvh, aac, ploc"), "{e}");
+        let e = r.resolve_chain("sweep-sah", None, &raw(&[("bounds", "scene")]), c).unwrap_err();
+        assert!(e.message().contains("encoder parameter"), "{e}");
+        let e = r.resolve_chain("lbvh", Some("hilbert"), &raw(&[]), c).unwrap_err();
+        assert!(e.message().contains("emc64-sort") && e.exit_code() == 2, "{e}");
+        for (k, v) in [("bits", "0"), ("bits", "22"), ("bits", "auto:ploc"), ("bounds", "box"), ("grid_bits", "7")] {
+            let e = r.resolve_chain("aac", None, &raw(&[(k, v)]), c).unwrap_err();
+            assert!(e.message().contains(k) && e.exit_code() == 2, "{k}={v}: {e}");
+        }
     }
 }

@@ -6,7 +6,7 @@
 //! once per run, as `computed` or `cached` (read from disk).
 use crate::error::{Error, Result};
 use crate::key::{params_string, stage_key, Key};
-use crate::registry::{fmt_f32, Registry, Resolved};
+use crate::registry::{fmt_f32, Registry, Resolved, ResolvedEncoder};
 use crate::stages::*;
 use crate::store::{now_unix, Machine, Manifest, Store};
 use crate::ResultRow;
@@ -58,10 +58,14 @@ impl NodeDef {
 struct Plan {
     spec: ChainSpec,
     resolved: Resolved,
+    /// Encoder of a code-using builder.
+    encoder: Option<ResolvedEncoder>,
     load: NodeDef,
+    encode: Option<NodeDef>,
     build: NodeDef,
     compact: Option<NodeDef>,
     measure: Option<(NodeDef, RaySpec)>,
+    focus: Option<NodeDef>,
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -81,6 +85,8 @@ pub struct Runner {
     scene_sums: HashMap<Key, SceneSummary>,
     bvhs: HashMap<Key, Arc<BvhArtifact>>,
     bvh_sums: HashMap<Key, BvhSummary>,
+    encodings: HashMap<Key, Arc<EncodeArtifact>>,
+    encode_sums: HashMap<Key, EncodeSummary>,
     file_hashes: HashMap<PathBuf, String>,
 }
 
@@ -105,6 +111,8 @@ impl Runner {
             scene_sums: HashMap::new(),
             bvhs: HashMap::new(),
             bvh_sums: HashMap::new(),
+            encodings: HashMap::new(),
+            encode_sums: HashMap::new(),
             file_hashes: HashMap::new(),
         }
     }
@@ -114,6 +122,7 @@ impl Runner {
     pub fn forget(&mut self) {
         self.scenes.clear();
         self.bvhs.clear();
+        self.encodings.clear();
     }
 
     fn note(&mut self, stage: &'static str, key: Key, computed: bool) {
@@ -146,7 +155,8 @@ impl Runner {
             return Err(Error::input("repeat must be at least 1"));
         }
         check_compact(&spec.compact)?;
-        let resolved = self.registry.resolve(&spec.build, &spec.params, spec.cost)?;
+        let (resolved, encoder) =
+            self.registry.resolve_chain(&spec.build, spec.encode.as_deref(), &spec.params, spec.cost)?;
         let load_params: BTreeMap<String, String> = match &spec.source {
             SceneSource::Gen(g) => [param("gen", (self.ops.canonical_gen)(g)?)].into(),
             SceneSource::File(path) => {
@@ -165,10 +175,22 @@ impl Runner {
             }
         };
         let load = NodeDef::new("load", self.versions.load, load_params, vec![]);
+        // Encoder parameters are canonical with `bits=auto` resolved for the builder, so chains
+        // whose codes are identical (e.g. emc64-var for aac and ploc) share the encode node.
+        let encode = encoder.as_ref().map(|e| {
+            let mut p = e.params.clone();
+            p.insert("encoder".into(), e.encoder.clone());
+            p.insert("repeat".into(), spec.repeat.to_string());
+            NodeDef::new("encode", self.versions.encode, p, vec![("load", load.key)])
+        });
         let mut bp = resolved.key_params();
         bp.insert("builder".into(), resolved.builder.clone());
         bp.insert("repeat".into(), spec.repeat.to_string());
-        let build = NodeDef::new("build", self.versions.build, bp, vec![("load", load.key)]);
+        let mut build_inputs = vec![("load", load.key)];
+        if let Some(e) = &encode {
+            build_inputs.push(("encode", e.key));
+        }
+        let build = NodeDef::new("build", self.versions.build, bp, build_inputs);
         let compact = (spec.compact != "none").then(|| {
             let p = [
                 param("method", &spec.compact),
@@ -193,7 +215,18 @@ impl Runner {
             let inputs = vec![("load", load.key), (final_node.stage, final_node.key)];
             (NodeDef::new("measure", self.versions.measure, p, inputs), rays)
         });
-        Ok(Plan { spec: spec.clone(), resolved, load, build, compact, measure })
+        let focus = spec.focus.map(|b| {
+            let final_node = compact.as_ref().unwrap_or(&build);
+            let p = [
+                param("box", focus_canonical(&b)),
+                param("c_t", fmt_f32(resolved.cost.c_t)),
+                param("c_i", fmt_f32(resolved.cost.c_i)),
+            ]
+            .into();
+            let inputs = vec![("load", load.key), (final_node.stage, final_node.key)];
+            NodeDef::new("focus", self.versions.focus, p, inputs)
+        });
+        Ok(Plan { spec: spec.clone(), resolved, encoder, load, encode, build, compact, measure, focus })
     }
 
     fn commit(&self, node: &NodeDef, files: BTreeMap<String, String>, seconds: f64) -> Result<()> {
@@ -287,6 +320,91 @@ impl Runner {
         Ok(sum)
     }
 
+    // ---- encode -------------------------------------------------------------------------------
+
+    fn encode_full(&mut self, plan: &Plan) -> Result<Arc<EncodeArtifact>> {
+        let node = plan.encode.clone().ok_or_else(|| Error::internal("chain has no encode stage"))?;
+        let enc = plan.encoder.clone().ok_or_else(|| Error::internal("chain has no encoder"))?;
+        if let Some(a) = self.encodings.get(&node.key) {
+            return Ok(a.clone());
+        }
+        if let Some(a) = self.cached::<EncodeArtifact>(&node, "bin") {
+            self.note("encode", node.key, false);
+            let a = Arc::new(a);
+            self.encode_sums.insert(node.key, a.summary.clone());
+            self.encodings.insert(node.key, a.clone());
+            return Ok(a);
+        }
+        let t0 = Instant::now();
+        let scene = self.scene_full(plan)?;
+        let (boxes, centers) = scene.boxes_and_centers();
+        let mut seconds = Vec::new();
+        let mut first: Option<bvhlab_morton::Encoding> = None;
+        for run in 0..plan.spec.repeat {
+            // Only encode() is timed (codes + sort); boxes and centres are shared preparation.
+            let t = Instant::now();
+            let e = (self.ops.encode)(&boxes, &centers, &enc.config);
+            seconds.push(secs(t));
+            match &first {
+                None => first = Some(e),
+                Some(e0) if *e0 != e => {
+                    return Err(Error::internal(format!(
+                        "encoder `{}` is not deterministic: run {} produced different codes than run 1 on {}",
+                        enc.encoder,
+                        run + 1,
+                        plan.spec.scene
+                    )));
+                }
+                _ => {}
+            }
+        }
+        let encoding = first.ok_or_else(|| Error::internal("repeat = 0"))?;
+        if encoding.order.len() != boxes.len() || encoding.codes.len() != boxes.len() {
+            return Err(Error::internal(format!(
+                "encoder `{}` returned {} codes for {} primitives",
+                enc.encoder,
+                encoding.codes.len(),
+                boxes.len()
+            )));
+        }
+        let summary = EncodeSummary {
+            code_bits: encoding.code_bits,
+            duplicate_fraction: encoding.duplicate_fraction(),
+            layout: encoding.layout.clone(),
+            median_seconds: median(&seconds),
+            seconds,
+        };
+        let art = EncodeArtifact { encoding, summary };
+        let mut files = BTreeMap::new();
+        files.insert("bin".into(), self.store.put("encode", &node.key, "bin", &art)?);
+        files.insert("sum".into(), self.store.put("encode", &node.key, "sum", &art.summary)?);
+        self.commit(&node, files, secs(t0))?;
+        self.note("encode", node.key, true);
+        let art = Arc::new(art);
+        self.encode_sums.insert(node.key, art.summary.clone());
+        self.encodings.insert(node.key, art.clone());
+        Ok(art)
+    }
+
+    fn encode_summary(&mut self, plan: &Plan) -> Result<Option<EncodeSummary>> {
+        let Some(node) = plan.encode.as_ref() else { return Ok(None) };
+        let key = node.key;
+        if let Some(s) = self.encode_sums.get(&key) {
+            return Ok(Some(s.clone()));
+        }
+        if let Some(s) = self.cached::<EncodeSummary>(node, "sum") {
+            self.note("encode", key, false);
+            self.encode_sums.insert(key, s.clone());
+            return Ok(Some(s));
+        }
+        let art = self.encode_full(plan)?;
+        if !self.store.path("encode", &key, "sum").exists() {
+            // Full artifact intact, summary not: restore it (identical bytes).
+            self.store.put("encode", &key, "sum", &art.summary)?;
+        }
+        Ok(Some(art.summary.clone()))
+    }
+
     // ---- build / compact ----------------------------------------------------------------------
 
     fn node(plan: &Plan, which: Which) -> &NodeDef {
@@ -319,13 +437,31 @@ impl Runner {
             Which::Build => None,
             Which::Compact => Some(self.bvh_full(plan, Which::Build)?),
         };
+        let encoding = match (which, &plan.encode) {
+            (Which::Build, Some(_)) => Some(self.encode_full(plan)?),
+            _ => None,
+        };
+        let codes = encoding.as_ref().map(|e| bvhlab_build::SortedCodes {
+            order: &e.encoding.order,
+            codes: &e.encoding.codes,
+            code_bits: e.encoding.code_bits,
+        });
+        let info = self.registry.get(&plan.resolved.builder)?.clone();
+        if which == Which::Build && info.codes.is_some() != codes.is_some() {
+            return Err(Error::internal(format!("builder `{}`: codes expected iff it uses codes", info.name)));
+        }
         for run in 0..repeat {
             // Only the method itself is timed; boxes and centres are shared input preparation.
+            // Bottom-up builders include their SAH compaction (thesis: part of AAC / PLOC).
             let t = Instant::now();
             let bvh = match &input {
                 None => {
-                    let info = self.registry.get(&plan.resolved.builder)?;
-                    (info.run)(&boxes, &centers, &plan.resolved)
+                    let bvh = (info.run)(&boxes, &centers, codes.as_ref(), &plan.resolved);
+                    if info.collapse {
+                        (self.ops.collapse)(&bvh, cost)
+                    } else {
+                        bvh
+                    }
                 }
                 Some(built) => (self.ops.collapse)(&built.bvh, cost),
             };
@@ -456,12 +592,40 @@ impl Runner {
         Ok(m)
     }
 
+    // ---- focus ----------------------------------------------------------------------------------
+
+    fn focus(&mut self, plan: &Plan) -> Result<Option<FocusSummary>> {
+        let (Some(node), Some(focus_box)) = (plan.focus.clone(), plan.spec.focus) else { return Ok(None) };
+        if let Some(f) = self.cached::<FocusSummary>(&node, "sum") {
+            self.note("focus", node.key, false);
+            return Ok(Some(f));
+        }
+        let t0 = Instant::now();
+        let scene = self.scene_full(plan)?;
+        let final_bvh = self.bvh_full(plan, if plan.compact.is_some() { Which::Compact } else { Which::Build })?;
+        let (boxes, centers) = scene.boxes_and_centers();
+        // A triangle is in focus when its centroid (box centre, as the builders see it) is inside.
+        let in_focus: Vec<bool> =
+            centers.iter().map(|c| focus_box.min.cmple(*c).all() && c.cmple(focus_box.max).all()).collect();
+        let result = bvhlab_bvh::focus::focus_cost(&final_bvh.bvh, &in_focus, &boxes, plan.resolved.cost);
+        let f = FocusSummary {
+            triangles: in_focus.iter().filter(|&&x| x).count() as u64,
+            sah_cost: result.map(|(_, c)| c),
+        };
+        let mut files = BTreeMap::new();
+        files.insert("sum".into(), self.store.put("focus", &node.key, "sum", &f)?);
+        self.commit(&node, files, secs(t0))?;
+        self.note("focus", node.key, true);
+        Ok(Some(f))
+    }
+
     // ---- chain ----------------------------------------------------------------------------------
 
     /// Runs (or reads from the cache) every stage of `spec` and returns its result row.
     pub fn run_chain(&mut self, spec: &ChainSpec, experiment: &str) -> Result<ResultRow> {
         let plan = self.plan(spec)?;
         let scene = self.scene_summary(&plan)?;
+        let encode = self.encode_summary(&plan)?;
         let build = self.bvh_summary(&plan, Which::Build)?;
         let compact = match plan.compact {
             Some(_) => Some(self.bvh_summary(&plan, Which::Compact)?),
@@ -471,10 +635,14 @@ impl Runner {
             Some(_) => Some(self.measure(&plan)?),
             None => None,
         };
+        let focus = self.focus(&plan)?;
         let fin = compact.as_ref().unwrap_or(&build);
         let m = &fin.metrics;
         let mut keys = BTreeMap::new();
         keys.insert("load".to_string(), plan.load.key.hex());
+        if let Some(e) = &plan.encode {
+            keys.insert("encode".to_string(), e.key.hex());
+        }
         keys.insert("build".to_string(), plan.build.key.hex());
         if let Some(c) = &plan.compact {
             keys.insert("compact".to_string(), c.key.hex());
@@ -482,7 +650,13 @@ impl Runner {
         if let Some((n, _)) = &plan.measure {
             keys.insert("measure".to_string(), n.key.hex());
         }
+        if let Some(n) = &plan.focus {
+            keys.insert("focus".to_string(), n.key.hex());
+        }
         let mut method = self.registry.label(&plan.resolved);
+        if let Some(e) = &plan.encoder {
+            method.push_str(&format!(" \u{b7} {}", self.registry.encoder_label(e)));
+        }
         if spec.compact != "none" {
             method.push_str(&format!(" +{}", spec.compact));
         }
@@ -511,15 +685,15 @@ impl Runner {
             valid: build.valid && fin.valid,
             bvh_hash: fin.bvh_hash.clone(),
             build_seconds: build.median_seconds,
-            encoder: None,
-            encode_params: None,
-            encode_seconds: None,
-            code_bits: None,
-            duplicate_code_fraction: None,
-            total_build_seconds: build.median_seconds,
+            encoder: plan.encoder.as_ref().map(|e| e.encoder.clone()),
+            encode_params: plan.encoder.as_ref().map(|e| params_string(&e.params)),
+            encode_seconds: encode.as_ref().map(|e| e.median_seconds),
+            code_bits: encode.as_ref().map(|e| e.code_bits),
+            duplicate_code_fraction: encode.as_ref().map(|e| e.duplicate_fraction),
+            total_build_seconds: encode.as_ref().map(|e| e.median_seconds).unwrap_or(0.0) + build.median_seconds,
             threads: rayon::current_num_threads() as u32,
-            focus_triangles: None,
-            focus_sah_cost: None,
+            focus_triangles: focus.as_ref().map(|f| f.triangles),
+            focus_sah_cost: focus.as_ref().and_then(|f| f.sah_cost),
             compact_seconds: compact.as_ref().map(|c| c.median_seconds).unwrap_or(0.0),
             rays_kind: measure.as_ref().map(|x| x.rays_kind.clone()),
             rays: measure.as_ref().map(|x| x.rays),

@@ -1,33 +1,47 @@
 //! Stage definitions: versions, the artifacts each stage stores, and the chain description.
 //!
-//! Stages: `load` (scene), `build` (BVH), `compact` (SAH collapse of the built BVH), `measure`
-//! (ray set traced through the final BVH). Bump a stage's version when its implementation changes
+//! Stages: `load` (scene), `encode` (Morton / EMC codes and the sorted primitive order, for the
+//! bottom-up builders), `build` (BVH), `compact` (SAH collapse of the built BVH), `measure` (ray set
+//! traced through the final BVH), `focus` (SAH cost around a focus box in the final BVH). Bump a stage's version when its implementation changes
 //! what it produces: its artifacts and everything downstream get new keys.
 use crate::error::{Error, Result};
 use bvhlab_bvh::{Aabb, Bvh, CostParams, Metrics};
 use bvhlab_geom::{LoadError, Scene};
+use bvhlab_morton::{EncodeConfig, Encoding};
 use bvhlab_trace::Camera;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 pub const LOAD_VERSION: u32 = 1;
-pub const BUILD_VERSION: u32 = 1;
+pub const ENCODE_VERSION: u32 = 1;
+/// 2: bottom-up builders (lbvh, aac, ploc) and the reworked (parallel) binned SAH.
+pub const BUILD_VERSION: u32 = 2;
 pub const COMPACT_VERSION: u32 = 1;
 pub const MEASURE_VERSION: u32 = 1;
+pub const FOCUS_VERSION: u32 = 1;
 
 /// Stage implementation versions; injectable so tests can simulate a version bump.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Versions {
     pub load: u32,
+    pub encode: u32,
     pub build: u32,
     pub compact: u32,
     pub measure: u32,
+    pub focus: u32,
 }
 
 impl Default for Versions {
     fn default() -> Self {
-        Versions { load: LOAD_VERSION, build: BUILD_VERSION, compact: COMPACT_VERSION, measure: MEASURE_VERSION }
+        Versions {
+            load: LOAD_VERSION,
+            encode: ENCODE_VERSION,
+            build: BUILD_VERSION,
+            compact: COMPACT_VERSION,
+            measure: MEASURE_VERSION,
+            focus: FOCUS_VERSION,
+        }
     }
 }
 
@@ -41,6 +55,7 @@ pub struct Ops {
     pub metrics: fn(&Bvh, CostParams) -> Metrics,
     pub validate: fn(&Bvh, &[Aabb]) -> Result<(), String>,
     pub collapse: fn(&Bvh, CostParams) -> Bvh,
+    pub encode: fn(&[Aabb], &[bvhlab_geom::Vec3], &EncodeConfig) -> Encoding,
 }
 
 impl Default for Ops {
@@ -51,6 +66,7 @@ impl Default for Ops {
             metrics: bvhlab_bvh::metrics,
             validate: bvhlab_bvh::validate,
             collapse: bvhlab_bvh::collapse::collapse,
+            encode: bvhlab_morton::encode,
         }
     }
 }
@@ -153,14 +169,17 @@ pub fn camera_canonical(c: &Camera) -> String {
     format!("eye={};target={};up={};fov={}", v(c.eye), v(c.target), v(c.up), c.fov_y_deg)
 }
 
-/// One chain: scene -> build -> optional compaction -> optional measurement.
+/// One chain: scene -> (encode) -> build -> optional compaction -> optional measurement / focus.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ChainSpec {
     /// Scene spec as the user gave it (row `scene`).
     pub scene: String,
     pub source: SceneSource,
     pub build: String,
-    /// User-given build parameters (builder params and c_t / c_i), validated by the registry.
+    /// Encoder for code-using builders (None: `morton`); an error with a top-down builder.
+    pub encode: Option<String>,
+    /// User-given parameters (builder params, c_t / c_i and encoder params, routed by name),
+    /// validated by the registry.
     pub params: BTreeMap<String, String>,
     /// Default cost constants (experiment `[cost]`), overridden by `params`.
     pub cost: CostParams,
@@ -171,6 +190,8 @@ pub struct ChainSpec {
     pub camera: Option<Camera>,
     /// Timed runs per stage (median reported).
     pub repeat: u32,
+    /// Focus box: triangles whose centroid lies inside (bounds included) form the focus object.
+    pub focus: Option<Aabb>,
 }
 
 impl ChainSpec {
@@ -179,12 +200,14 @@ impl ChainSpec {
             scene: scene.to_string(),
             source: SceneSource::parse(scene),
             build: build.to_string(),
+            encode: None,
             params: BTreeMap::new(),
             cost: CostParams::default(),
             compact: "none".into(),
             rays: None,
             camera: None,
             repeat: 5,
+            focus: None,
         }
     }
 }
@@ -225,6 +248,65 @@ pub struct BvhSummary {
 pub struct BvhArtifact {
     pub bvh: Bvh,
     pub summary: BvhSummary,
+}
+
+/// Summary of the encode stage (`encode/<key>.sum`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EncodeSummary {
+    pub code_bits: u32,
+    pub duplicate_fraction: f64,
+    /// Bit layout, most significant bit first (`Encoding::layout`).
+    pub layout: String,
+    /// Seconds of each of the `repeat` runs of `encode()` (codes + sort).
+    pub seconds: Vec<f64>,
+    pub median_seconds: f64,
+}
+
+/// Full artifact of the encode stage (`encode/<key>.bin`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EncodeArtifact {
+    pub encoding: Encoding,
+    pub summary: EncodeSummary,
+}
+
+/// Result of the focus stage (`focus/<key>.sum`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FocusSummary {
+    /// Triangles whose centroid lies in the focus box.
+    pub triangles: u64,
+    /// `bvhlab_bvh::focus::focus_cost`; None when no triangle is in focus.
+    pub sah_cost: Option<f64>,
+}
+
+/// Parses `minx,miny,minz,maxx,maxy,maxz` (the CLI's `--focus`).
+pub fn parse_focus(s: &str) -> Result<Aabb> {
+    let v: Vec<f32> = s.split(',').map(|x| x.trim().parse::<f32>()).collect::<Result<_, _>>().map_err(|_| {
+        Error::input(format!("bad focus box `{s}`: expected six numbers minx,miny,minz,maxx,maxy,maxz"))
+    })?;
+    if v.len() != 6 {
+        return Err(Error::input(format!(
+            "bad focus box `{s}`: expected six numbers minx,miny,minz,maxx,maxy,maxz, got {}",
+            v.len()
+        )));
+    }
+    focus_box([v[0], v[1], v[2]], [v[3], v[4], v[5]]).map_err(|why| Error::input(format!("bad focus box `{s}`: {why}")))
+}
+
+/// A focus box from its corners: finite, `min <= max` on every axis (a flat box is allowed).
+pub fn focus_box(min: [f32; 3], max: [f32; 3]) -> Result<Aabb, String> {
+    if min.iter().chain(max.iter()).any(|x| !x.is_finite()) {
+        return Err("corners must be finite".into());
+    }
+    if (0..3).any(|i| min[i] > max[i]) {
+        return Err(format!("min {min:?} must not exceed max {max:?} on any axis"));
+    }
+    Ok(Aabb::new(bvhlab_geom::Vec3::from(min), bvhlab_geom::Vec3::from(max)))
+}
+
+/// Canonical text of a focus box for keys: `min=x,y,z;max=x,y,z` (shortest round-trip floats).
+pub fn focus_canonical(b: &Aabb) -> String {
+    let v = |v: bvhlab_geom::Vec3| format!("{},{},{}", v.x + 0.0, v.y + 0.0, v.z + 0.0);
+    format!("min={};max={}", v(b.min), v(b.max))
 }
 
 /// Result of the measure stage (`measure/<key>.sum`; there is no larger artifact).

@@ -1,8 +1,10 @@
 //! Cache behaviour of the runner, independent of the real loaders/builders: scenes, the builder,
 //! metrics, validation and compaction are injected test doubles, so these tests exercise only
-//! keys, counting, the store and corruption handling.
+//! keys, counting, the store and corruption handling (encode and focus stages included).
 use bvhlab_bvh::{Aabb, Bvh, CostParams, Metrics, Node, Vec3};
 use bvhlab_geom::{LoadError, Scene, Triangle};
+use bvhlab_build::SortedCodes;
+use bvhlab_morton::{AutoFor, Bits, EncodeConfig, Encoding, Scheme};
 use bvhlab_pipeline::registry::{BuilderInfo, Kind, ParamSpec, Resolved};
 use bvhlab_pipeline::stages::Ops;
 use bvhlab_pipeline::{ChainSpec, Counts, Key, Registry, ResultRow, Runner, Store, Versions};
@@ -48,6 +50,31 @@ fn test_build(boxes: &[Aabb], centers: &[Vec3], r: &Resolved) -> Bvh {
     Bvh { nodes, prim_indices: idx }
 }
 
+/// Codes = quantized centroid x (bits per the config; EMC: 21), sorted, ties by index.
+fn test_encode(boxes: &[Aabb], centers: &[Vec3], cfg: &EncodeConfig) -> Encoding {
+    let bits = match (cfg.scheme, cfg.bits) {
+        (Scheme::Morton, Bits::Fixed(b)) => b,
+        (Scheme::Morton, Bits::Auto(AutoFor::Ploc)) => 20,
+        (Scheme::Morton, Bits::Auto(_)) => 10,
+        _ => 21,
+    };
+    let codes: Vec<u64> = centers.iter().map(|c| (c.x.max(0.0) as u64).min((1u64 << bits) - 1)).collect();
+    let mut order: Vec<u32> = (0..boxes.len() as u32).collect();
+    order.sort_by_key(|&i| (codes[i as usize], i));
+    let sorted: Vec<u64> = order.iter().map(|&i| codes[i as usize]).collect();
+    Encoding { order, codes: sorted, code_bits: bits, frame: Aabb::EMPTY, layout: "x".repeat(bits as usize), }
+}
+
+/// A code-using test builder: one leaf holding every primitive in code order.
+fn test_code_build(boxes: &[Aabb], _: &[Vec3], s: Option<&SortedCodes>, _: &Resolved) -> Bvh {
+    let s = s.expect("codes");
+    let mut b = Aabb::EMPTY;
+    for x in boxes {
+        b.grow(x);
+    }
+    Bvh { nodes: vec![Node::leaf(b, 0, s.order.len() as u32)], prim_indices: s.order.to_vec() }
+}
+
 fn test_metrics(b: &Bvh, cost: CostParams) -> Metrics {
     let leaves = b.nodes.iter().filter(|n| n.is_leaf()).count() as u64;
     Metrics {
@@ -73,17 +100,28 @@ fn test_runner(root: &Path, versions: Versions) -> Runner {
             b.prim_indices.reverse();
             b
         },
+        encode: test_encode,
+    };
+    let code_builder = |name, auto| BuilderInfo {
+        codes: Some(auto),
+        collapse: true,
+        ..BuilderInfo::top_down(name, "test double over codes", vec![], test_code_build)
     };
     r.registry = Registry {
-        builders: vec![BuilderInfo {
-            name: "test-median",
-            about: "test double",
-            params: vec![
-                ParamSpec { name: "bins", default: "16", kind: Kind::UInt { min: 2, max: 64 }, about: "", in_label: true },
-                ParamSpec { name: "leaf", default: "2", kind: Kind::UInt { min: 1, max: 8 }, about: "", in_label: false },
-            ],
-            run: test_build,
-        }],
+        builders: vec![
+            BuilderInfo::top_down(
+                "test-median",
+                "test double",
+                vec![
+                    ParamSpec { name: "bins", default: "16", kind: Kind::UInt { min: 2, max: 64 }, about: "", in_label: true },
+                    ParamSpec { name: "leaf", default: "2", kind: Kind::UInt { min: 1, max: 8 }, about: "", in_label: false },
+                ],
+                |b, c, _, r| test_build(b, c, r),
+            ),
+            code_builder("test-codes", AutoFor::Lbvh),
+            code_builder("test-codes2", AutoFor::Ploc),
+        ],
+        encoders: Registry::standard_encoders(),
     };
     r
 }
@@ -119,7 +157,13 @@ fn stage(c: &Counts, s: &str) -> (u64, u64) {
 /// Rows without timings (which legitimately change when a stage is recomputed).
 fn untimed(rows: &[ResultRow]) -> Vec<ResultRow> {
     rows.iter()
-        .map(|r| ResultRow { build_seconds: 0.0, compact_seconds: 0.0, ..r.clone() })
+        .map(|r| ResultRow {
+            build_seconds: 0.0,
+            compact_seconds: 0.0,
+            total_build_seconds: 0.0,
+            encode_seconds: r.encode_seconds.map(|_| 0.0),
+            ..r.clone()
+        })
         .collect()
 }
 
@@ -318,7 +362,7 @@ fn nondeterministic_builder_fails_loudly() {
     static CALLS: AtomicU32 = AtomicU32::new(0);
     let dir = tempfile::tempdir().unwrap();
     let mut r = test_runner(dir.path(), Versions::default());
-    r.registry.builders[0].run = |b, c, res| {
+    r.registry.builders[0].run = |b, c, _, res| {
         let mut bvh = test_build(b, c, res);
         if CALLS.fetch_add(1, Ordering::SeqCst) % 2 == 1 {
             bvh.prim_indices.swap(0, 1);
@@ -330,4 +374,125 @@ fn nondeterministic_builder_fails_loudly() {
     let e = r.run_chain(&c, "t").unwrap_err();
     assert!(e.message().contains("not deterministic"), "{e}");
     assert_eq!(e.exit_code(), 1);
+}
+
+// ---- encode and focus stages -------------------------------------------------------------------
+
+fn code_chain(build: &str, encode: Option<&str>, params: &[(&str, &str)], compact: &str) -> ChainSpec {
+    let mut c = ChainSpec::new("gen:grid:n=40", build);
+    c.encode = encode.map(str::to_string);
+    c.params = params.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+    c.compact = compact.into();
+    c.repeat = 3;
+    c
+}
+
+#[test]
+fn encode_stage_cold_warm_and_row_fields() {
+    let dir = tempfile::tempdir().unwrap();
+    let ch = vec![code_chain("test-codes", None, &[], "none"), code_chain("test-codes", Some("morton"), &[], "collapse")];
+    let (rows, c) = run_all(dir.path(), Versions::default(), &ch);
+    // `encode = None` means morton: both chains share load, encode and build.
+    assert_eq!((stage(&c, "load"), stage(&c, "encode"), stage(&c, "build"), stage(&c, "compact")), ((1, 0), (1, 0), (1, 0), (1, 0)));
+    let r = &rows[0];
+    assert_eq!(r.encoder.as_deref(), Some("morton"));
+    assert_eq!(r.encode_params.as_deref(), Some("bits=auto:lbvh,bounds=scene,grid_bits=0"));
+    assert_eq!(r.code_bits, Some(10));
+    assert_eq!(r.duplicate_code_fraction, Some(0.0), "x = 0..39 are distinct codes");
+    let enc = r.encode_seconds.unwrap();
+    assert!(enc > 0.0);
+    assert_eq!(r.total_build_seconds, enc + r.build_seconds);
+    assert_eq!(r.method, "test-codes \u{b7} morton");
+    assert_eq!(rows[1].method, "test-codes \u{b7} morton +collapse");
+    assert!(r.keys.contains_key("encode"));
+    // The build applied the (test) compaction of bottom-up builders: code order reversed.
+    let store = Store::open(dir.path()).unwrap();
+    let m = store.read_manifest("build", &Key::from_hex(&r.keys["build"]).unwrap()).unwrap();
+    assert_eq!(m.inputs, vec![format!("load:{}", r.keys["load"]), format!("encode:{}", r.keys["encode"])]);
+    let em = store.read_manifest("encode", &Key::from_hex(&r.keys["encode"]).unwrap()).unwrap();
+    assert_eq!(em.params["encoder"], "morton");
+    assert_eq!(em.params["bits"], "auto:lbvh");
+    assert_eq!(em.inputs, vec![format!("load:{}", r.keys["load"])]);
+
+    let (warm_rows, w) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!((w.computed, w.cached), (0, 4));
+    assert_eq!(warm_rows, rows);
+    assert!(store.verify().bad.is_empty());
+}
+
+#[test]
+fn encoder_parameter_change_recomputes_encode_and_downstream_only() {
+    let dir = tempfile::tempdir().unwrap();
+    run_all(dir.path(), Versions::default(), &[code_chain("test-codes", None, &[], "collapse")]);
+    let (rows, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes", None, &[("bits", "4")], "collapse")]);
+    assert_eq!((stage(&c, "load"), stage(&c, "encode"), stage(&c, "build"), stage(&c, "compact")), ((0, 1), (1, 0), (1, 0), (1, 0)));
+    assert_eq!(rows[0].code_bits, Some(4));
+    assert!(rows[0].duplicate_code_fraction.unwrap() > 0.5, "x >= 15 all share the top code");
+    assert_eq!(rows[0].method, "test-codes \u{b7} morton bits=4 +collapse");
+    // An explicit default spelling shares the keys.
+    let (_, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes", Some("morton"), &[("bits", "auto"), ("grid_bits", "0")], "collapse")]);
+    assert_eq!(c.computed, 0);
+    // A builder parameter (cost) changes build and compact, not encode.
+    let (_, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes", None, &[("c_t", "1.5")], "collapse")]);
+    assert_eq!((stage(&c, "encode"), stage(&c, "build"), stage(&c, "compact")), ((0, 1), (1, 0), (1, 0)));
+    // Another encoder: new encode node.
+    let (rows, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes", Some("emc64-var"), &[], "none")]);
+    assert_eq!((stage(&c, "load"), stage(&c, "encode"), stage(&c, "build")), ((0, 1), (1, 0), (1, 0)));
+    assert_eq!(rows[0].encode_params.as_deref(), Some("bounds=scene,grid_bits=0"));
+    // EMC has no bits: another builder with another `auto` shares the encode node...
+    let (_, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes2", Some("emc64-var"), &[], "none")]);
+    assert_eq!((stage(&c, "encode"), stage(&c, "build")), ((0, 1), (1, 0)));
+    // ...while morton bits=auto resolves per builder (auto:ploc is a new encode node).
+    let (rows, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes2", None, &[], "none")]);
+    assert_eq!(stage(&c, "encode"), (1, 0));
+    assert_eq!(rows[0].encode_params.as_deref(), Some("bits=auto:ploc,bounds=scene,grid_bits=0"));
+    // An encode version bump invalidates encode and downstream, not load.
+    let v = Versions { encode: Versions::default().encode + 1, ..Versions::default() };
+    let (_, c) = run_all(dir.path(), v, &[code_chain("test-codes", None, &[], "collapse")]);
+    assert_eq!((stage(&c, "load"), stage(&c, "encode"), stage(&c, "build"), stage(&c, "compact")), ((0, 1), (1, 0), (1, 0), (1, 0)));
+}
+
+#[test]
+fn encode_errors_are_input_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = test_runner(dir.path(), Versions::default());
+    let e = r.run_chain(&code_chain("test-median", Some("morton"), &[], "none"), "t").unwrap_err();
+    assert!(e.exit_code() == 2 && e.message().contains("takes no codes"), "{e}");
+    let e = r.run_chain(&code_chain("test-codes", Some("zorder"), &[], "none"), "t").unwrap_err();
+    assert!(e.exit_code() == 2 && e.message().contains("emc64-var"), "{e}");
+    let e = r.run_chain(&code_chain("test-codes", Some("emc64-sort"), &[("bits", "8")], "none"), "t").unwrap_err();
+    assert!(e.exit_code() == 2 && e.message().contains("bits"), "{e}");
+    assert_eq!(r.counts.computed, 0);
+}
+
+#[test]
+fn focus_stage_is_cached_and_keyed_by_box() {
+    let dir = tempfile::tempdir().unwrap();
+    let focus = |lo: f32, hi: f32| Some(Aabb::new(Vec3::new(lo, -1.0, -1.0), Vec3::new(hi, 2.0, 2.0)));
+    let mut a = ChainSpec::new("gen:grid:n=30", "test-median");
+    a.repeat = 1;
+    let plain = run_all(dir.path(), Versions::default(), &[a.clone()]).0;
+    assert_eq!((plain[0].focus_triangles, plain[0].focus_sah_cost), (None, None));
+    assert!(!plain[0].keys.contains_key("focus"));
+    a.focus = focus(10.0, 12.0);
+    let (rows, c) = run_all(dir.path(), Versions::default(), &[a.clone()]);
+    assert_eq!((stage(&c, "build"), stage(&c, "focus")), ((0, 1), (1, 0)));
+    // Centroids x = 10.25, 11.25 are inside (x + 0.25 for the triangles of the test loader).
+    assert_eq!(rows[0].focus_triangles, Some(2));
+    let cost = rows[0].focus_sah_cost.unwrap();
+    assert!(cost.is_finite() && cost > 0.0, "{cost}");
+    let (warm, c) = run_all(dir.path(), Versions::default(), &[a.clone()]);
+    assert_eq!(c.computed, 0);
+    assert_eq!(warm, rows);
+    // A focus box holding no centroid: counted, no cost.
+    a.focus = focus(100.0, 120.0);
+    let (rows, c) = run_all(dir.path(), Versions::default(), &[a.clone()]);
+    assert_eq!(stage(&c, "focus"), (1, 0));
+    assert_eq!((rows[0].focus_triangles, rows[0].focus_sah_cost), (Some(0), None));
+    // With compaction the focus is measured on the compacted BVH (another key).
+    a.focus = focus(10.0, 12.0);
+    a.compact = "collapse".into();
+    let (rows2, c) = run_all(dir.path(), Versions::default(), &[a]);
+    assert_eq!(stage(&c, "focus"), (1, 0));
+    assert_ne!(rows2[0].keys["focus"], rows[0].keys["focus"]);
 }

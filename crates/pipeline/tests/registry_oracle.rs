@@ -1,10 +1,13 @@
 //! Every builder the pipeline offers (the registry, so builders added later are covered without
 //! touching this file), with and without SAH compaction, on every generated scene type: the BVH passes
 //! structural validation and finds the same closest hit as brute force on random rays (thesis 4.4).
-use bvhlab_bvh::{collapse::collapse, validate, CostParams};
-use bvhlab_geom::load_scene;
+//! Builders that take codes run with every encoder and the encoder options (bits, bounds, grid),
+//! including the far-outlier scenes where quantization fails (Riemersma 2024).
+use bvhlab_build::SortedCodes;
+use bvhlab_bvh::{collapse::collapse, validate, Bvh, CostParams};
+use bvhlab_geom::{load_scene, Scene};
 use bvhlab_pipeline::registry::Registry;
-use bvhlab_trace::{brute_force, random_rays, trace};
+use bvhlab_trace::{brute_force, random_rays, trace, Ray};
 use std::collections::BTreeMap;
 
 const SCENES: &[&str] = &[
@@ -12,14 +15,41 @@ const SCENES: &[&str] = &[
     "gen:terrain:n=3000",
     "gen:hairball:n=500",
     "gen:city:blocks=6",
+    "gen:outlier:e=0,n=2000",
+    "gen:outlier:e=10,n=2000",
     "gen:outlier:e=20,n=2000",
+    "gen:outlier:e=30,n=2000",
     "gen:degenerate:n=2000",
 ];
+
+/// (encoder, parameters) for the builders that take codes.
+const ENCODERS: &[(&str, &[(&str, &str)])] = &[
+    ("morton", &[]),
+    ("morton", &[("bits", "10")]),
+    ("morton", &[("bounds", "concise")]),
+    ("emc64-sort", &[]),
+    ("emc64-var", &[]),
+    ("emc64-var", &[("bounds", "concise"), ("grid_bits", "9")]),
+    ("morton", &[("grid_bits", "9")]),
+];
+
+fn check(ctx: &str, bvh: &Bvh, scene: &Scene, boxes: &[bvhlab_bvh::Aabb], rays: &[Ray], want: &[bvhlab_trace::Hit]) {
+    validate(bvh, boxes).unwrap_or_else(|e| panic!("{ctx}: invalid: {e}"));
+    let got = trace(bvh, &scene.triangles, rays);
+    for (i, (g, w)) in got.hits.iter().zip(want).enumerate() {
+        let same =
+            g.prim == w.prim || (g.is_hit() && w.is_hit() && (g.t - w.t).abs() <= 1e-4 * w.t.abs().max(1e-30));
+        assert!(same, "{ctx}: ray {i} got {g:?}, brute force {w:?}");
+    }
+}
 
 #[test]
 fn every_registered_builder_matches_brute_force() {
     let reg = Registry::standard();
     let cost = CostParams::default();
+    let raw = |kv: &[(&str, &str)]| -> BTreeMap<String, String> {
+        kv.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
+    };
     for spec in SCENES {
         let scene = load_scene(spec).unwrap();
         let (boxes, centers) = scene.boxes_and_centers();
@@ -28,20 +58,27 @@ fn every_registered_builder_matches_brute_force() {
         let rays = random_rays(&b, radius, 3000, 7);
         let want = brute_force(&scene.triangles, &rays);
         for info in &reg.builders {
-            for leaf in ["1", "2"] {
-                let raw: BTreeMap<String, String> = [("leaf".to_string(), leaf.to_string())].into();
-                let resolved = reg.resolve(info.name, &raw, cost).unwrap();
-                let built = (info.run)(&boxes, &centers, &resolved);
-                for (what, bvh) in [("built", built.clone()), ("collapsed", collapse(&built, cost))] {
-                    let ctx = format!("{spec} {} leaf={leaf} {what}", info.name);
-                    validate(&bvh, &boxes).unwrap_or_else(|e| panic!("{ctx}: invalid: {e}"));
-                    let got = trace(&bvh, &scene.triangles, &rays);
-                    for (i, (g, w)) in got.hits.iter().zip(&want).enumerate() {
-                        let same = g.prim == w.prim
-                            || (g.is_hit() && w.is_hit() && (g.t - w.t).abs() <= 1e-4 * w.t.abs().max(1e-30));
-                        assert!(same, "{ctx}: ray {i} got {g:?}, brute force {w:?}");
+            if info.codes.is_none() {
+                for leaf in ["1", "2"] {
+                    let resolved = reg.resolve(info.name, &raw(&[("leaf", leaf)]), cost).unwrap();
+                    let built = info.construct(&boxes, &centers, None, &resolved);
+                    for (what, bvh) in [("built", built.clone()), ("collapsed", collapse(&built, cost))] {
+                        check(&format!("{spec} {} leaf={leaf} {what}", info.name), &bvh, &scene, &boxes, &rays, &want);
                     }
                 }
+                continue;
+            }
+            for (enc, params) in ENCODERS {
+                let (resolved, encoder) = reg.resolve_chain(info.name, Some(enc), &raw(params), cost).unwrap();
+                let encoder = encoder.expect("code builders have an encoder");
+                let e = bvhlab_morton::encode(&boxes, &centers, &encoder.config);
+                let codes = SortedCodes { order: &e.order, codes: &e.codes, code_bits: e.code_bits };
+                let ctx = format!("{spec} {} {}", reg.label(&resolved), reg.encoder_label(&encoder));
+                // The raw single-primitive-leaf tree and what the build stage stores (+ compaction).
+                let raw_tree = (info.run)(&boxes, &centers, Some(&codes), &resolved);
+                check(&format!("{ctx} raw"), &raw_tree, &scene, &boxes, &rays, &want);
+                let built = info.construct(&boxes, &centers, Some(&codes), &resolved);
+                check(&format!("{ctx} built"), &built, &scene, &boxes, &rays, &want);
             }
         }
     }
