@@ -3,10 +3,10 @@
 //! sweeps over the bins, the original SAH leaf-vs-split test (eq. 2 and 3), in-place partition,
 //! iteration with an explicit stack.
 use crate::boxa::BoxA;
-use crate::primref::{make_refs, object_median, partition, PrimRef};
-use crate::topdown::{build_nodes, Range};
+use crate::primref::{make_refs, make_refs_parallel, object_median, partition, partition_parallel, PrimRef};
+use crate::topdown::{build_nodes, build_nodes_parallel, Range};
 use crate::TopDownConfig;
-use bvhlab_bvh::{Aabb, Bvh, Vec3};
+use bvhlab_bvh::{Aabb, Bvh, Node, Vec3};
 use serde::{Deserialize, Serialize};
 
 /// Eq. 6's epsilon: shifts every centroid slightly left so the right boundary needs no special case.
@@ -67,7 +67,6 @@ struct Binner {
 /// The best binned split of a node.
 #[derive(Clone, Copy, Debug)]
 struct BinSplit {
-    axis: usize,
     /// Bins `0..=last_left_bin` go left.
     last_left_bin: usize,
     /// `SA_L * n_L + SA_R * n_R` (half areas).
@@ -92,16 +91,8 @@ impl Binner {
         }
     }
 
-    /// Bins `prims` along `axis` and sweeps twice (thesis 3.1.1). Returns the cheapest candidate
-    /// that puts primitives on both sides, or `None` if all centroids landed in one bin.
-    /// Ties go to the lowest plane.
-    fn find_split(
-        &mut self,
-        prims: &[PrimRef],
-        axis: usize,
-        cb_min: f32,
-        k0: f32,
-    ) -> Option<BinSplit> {
+    /// Bins `prims` along `axis` (eq. 6) into `self.count` / `self.bounds`.
+    fn bin(&mut self, prims: &[PrimRef], axis: usize, cb_min: f32, k0: f32) {
         let k = self.k;
         self.count.fill(0);
         self.bounds.fill(BoxA::EMPTY);
@@ -110,6 +101,13 @@ impl Binner {
             self.count[b] += 1;
             self.bounds[b].grow(p.min, p.max);
         }
+    }
+
+    /// The two sweeps over the bins (thesis 3.1.1). Returns the cheapest candidate that puts
+    /// primitives on both sides, or `None` if all centroids landed in one bin. Ties go to the
+    /// lowest plane.
+    fn sweep(&mut self) -> Option<BinSplit> {
+        let k = self.k;
         // Sweep 1, left to right: accumulate counts and boxes left of each plane.
         let mut acc = BoxA::EMPTY;
         let mut n = 0;
@@ -133,7 +131,6 @@ impl Binner {
             let cost = self.left_area[i] * n_l as f32 + acc.half_area() * n_r as f32;
             if best.is_none_or(|b| cost <= b.cost) {
                 best = Some(BinSplit {
-                    axis,
                     last_left_bin: i,
                     cost,
                 });
@@ -143,17 +140,21 @@ impl Binner {
     }
 }
 
-/// The split decision for one node: `None` makes a leaf.
-fn split(
-    refs: &mut [PrimRef],
-    r: &Range,
-    binner: &mut Binner,
-    cfg: &TopDownConfig,
-    term: CentroidTermination,
-) -> Option<(Range, Range)> {
-    let n = r.len();
-    if n <= cfg.max_leaf() {
-        return None;
+/// What a node needs before its primitives are looked at.
+enum Plan {
+    Leaf,
+    /// Centroids too close to bin (only with `leaf = 1`): object median on this axis.
+    Median(usize),
+    Bin {
+        axis: usize,
+        cb_min: f32,
+        k0: f32,
+    },
+}
+
+fn plan(r: &Range, k: usize, cfg: &TopDownConfig, term: CentroidTermination) -> Plan {
+    if r.len() <= cfg.max_leaf() {
+        return Plan::Leaf;
     }
     let forced = cfg.forced_single();
     let axis = r.cbounds.largest_axis();
@@ -165,25 +166,177 @@ fn split(
     let stop =
         tiny || (term == CentroidTermination::AnyAxis && !min_extent.ge(&MIN_CENTROID_EXTENT));
     if stop && !forced {
-        return None;
+        return Plan::Leaf;
     }
     if tiny {
         // leaf = 1 disables early termination; binning cannot separate these centroids.
-        return Some(object_median(refs, r, axis));
+        return Plan::Median(axis);
     }
-    let k = binner.k;
     let k0 = k as f32 * (1.0 - BIN_EPSILON) / extent;
-    let Some(best) = binner.find_split(&refs[r.begin..r.end], axis, cb_min, k0) else {
+    Plan::Bin { axis, cb_min, k0 }
+}
+
+/// After binning and sweeping: leaf, object-median fallback, or the split to partition by.
+enum Decision {
+    Leaf,
+    Median(usize),
+    Split(BinSplit),
+}
+
+fn decide(best: Option<BinSplit>, r: &Range, axis: usize, cfg: &TopDownConfig) -> Decision {
+    let forced = cfg.forced_single();
+    let Some(best) = best else {
         // All centroids in one bin (only possible through float rounding at extreme coordinates).
-        return forced.then(|| object_median(refs, r, axis));
+        return if forced {
+            Decision::Median(axis)
+        } else {
+            Decision::Leaf
+        };
     };
-    if !forced && cfg.sah_prefers_leaf(n, r.bounds.half_area(), best.cost) {
-        return None;
+    if !forced && cfg.sah_prefers_leaf(r.len(), r.bounds.half_area(), best.cost) {
+        return Decision::Leaf;
     }
-    // Re-applying the binning formula decides each primitive's side (thesis 3.1.1); it is the same
-    // float expression as in `find_split`, so the sides match the counts the SAH was computed from.
-    let (ax, last) = (best.axis, best.last_left_bin);
-    let (left, right) = partition(refs, r, |p| bin_of(p.c[ax], cb_min, k0, k) <= last);
-    debug_assert!(left.len() > 0 && right.len() > 0);
-    Some((left, right))
+    Decision::Split(best)
+}
+
+/// The split decision for one node: `None` makes a leaf.
+fn split(
+    refs: &mut [PrimRef],
+    r: &Range,
+    binner: &mut Binner,
+    cfg: &TopDownConfig,
+    term: CentroidTermination,
+) -> Option<(Range, Range)> {
+    let k = binner.k;
+    let (axis, cb_min, k0) = match plan(r, k, cfg, term) {
+        Plan::Leaf => return None,
+        Plan::Median(axis) => return Some(object_median(refs, r, axis)),
+        Plan::Bin { axis, cb_min, k0 } => (axis, cb_min, k0),
+    };
+    binner.bin(&refs[r.begin..r.end], axis, cb_min, k0);
+    match decide(binner.sweep(), r, axis, cfg) {
+        Decision::Leaf => None,
+        Decision::Median(axis) => Some(object_median(refs, r, axis)),
+        Decision::Split(best) => {
+            // Re-applying the binning formula decides each primitive's side (thesis 3.1.1); it is
+            // the same float expression as in `bin`, so the sides match the counts the SAH was
+            // computed from.
+            let last = best.last_left_bin;
+            let (left, right) = partition(refs, r, |p| bin_of(p.c[axis], cb_min, k0, k) <= last);
+            debug_assert!(left.len() > 0 && right.len() > 0);
+            Some((left, right))
+        }
+    }
+}
+
+/// Speed knobs of [`build_parallel_tuned`]. The tree never depends on them (tests set them tiny to
+/// exercise every code path on small inputs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ParallelTuning {
+    /// Nodes with fewer primitives become independent tasks (vertical phase); larger nodes are
+    /// split by all threads together (horizontal phase).
+    pub vertical_min: usize,
+    /// Primitives per work item in the horizontal phase's parallel binning and partition.
+    pub chunk: usize,
+}
+
+impl ParallelTuning {
+    /// For `n` primitives and `threads` threads: about 16 vertical tasks per thread (enough for
+    /// rayon's work stealing to even out unequal subtrees), chunks of a quarter thread's share.
+    pub fn for_size(n: usize, threads: usize) -> Self {
+        let threads = threads.max(1);
+        ParallelTuning {
+            vertical_min: (n / (16 * threads)).max(4096),
+            chunk: (n / (4 * threads)).clamp(1024, 1 << 16),
+        }
+    }
+}
+
+/// The parallel binned SAH (thesis 3.1.2, Wald's mixed horizontal/vertical scheme) on the current
+/// rayon pool. Gives exactly the tree (same bytes) of [`build_with_termination`] at any thread
+/// count; with one thread it runs the sequential builder.
+pub fn build_parallel(
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    bins: u32,
+    cfg: &TopDownConfig,
+    term: CentroidTermination,
+) -> Bvh {
+    let threads = rayon::current_num_threads();
+    if threads <= 1 {
+        return build_with_termination(boxes, centers, bins, cfg, term);
+    }
+    let tuning = ParallelTuning::for_size(boxes.len(), threads);
+    build_parallel_tuned(boxes, centers, bins, cfg, term, tuning)
+}
+
+/// [`build_parallel`] with explicit speed knobs (always takes the parallel code path).
+pub fn build_parallel_tuned(
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    bins: u32,
+    cfg: &TopDownConfig,
+    term: CentroidTermination,
+    tuning: ParallelTuning,
+) -> Bvh {
+    use rayon::prelude::*;
+    let (mut refs, root) = make_refs_parallel(boxes, centers);
+    let k = bins.max(2) as usize;
+    let chunk = tuning.chunk.max(1);
+    let mut flags = vec![false; refs.len()];
+    let mut binner = Binner::new(k);
+    // Horizontal phase: one node at a time, binning and partition spread over the threads.
+    let horizontal = |refs: &mut [PrimRef], r: &Range| -> Option<(Range, Range)> {
+        let (axis, cb_min, k0) = match plan(r, k, cfg, term) {
+            Plan::Leaf => return None,
+            Plan::Median(axis) => return Some(object_median(refs, r, axis)),
+            Plan::Bin { axis, cb_min, k0 } => (axis, cb_min, k0),
+        };
+        // Per-chunk bins merged afterwards: counts add and boxes take min/max, both exact, so
+        // the merged bins equal the sequential ones whatever the chunking.
+        let (count, bounds) = refs[r.begin..r.end]
+            .par_chunks(chunk)
+            .map(|ps| {
+                let mut count = vec![0u32; k];
+                let mut bounds = vec![BoxA::EMPTY; k];
+                for p in ps {
+                    let b = bin_of(p.c[axis], cb_min, k0, k);
+                    count[b] += 1;
+                    bounds[b].grow(p.min, p.max);
+                }
+                (count, bounds)
+            })
+            .reduce_with(|mut a, b| {
+                for i in 0..k {
+                    a.0[i] += b.0[i];
+                    a.1[i] = a.1[i].union(&b.1[i]);
+                }
+                a
+            })?;
+        binner.count.copy_from_slice(&count);
+        binner.bounds.copy_from_slice(&bounds);
+        match decide(binner.sweep(), r, axis, cfg) {
+            Decision::Leaf => None,
+            Decision::Median(axis) => Some(object_median(refs, r, axis)),
+            Decision::Split(best) => {
+                let last = best.last_left_bin;
+                let f = &mut flags[r.begin..r.end];
+                let (left, right) = partition_parallel(refs, r, f, chunk, |p| {
+                    bin_of(p.c[axis], cb_min, k0, k) <= last
+                });
+                debug_assert!(left.len() > 0 && right.len() > 0);
+                Some((left, right))
+            }
+        }
+    };
+    // Vertical phase: each small subtree is the sequential builder on its own slice.
+    let vertical = |refs: &mut [PrimRef], r: &Range| -> Vec<Node> {
+        let mut binner = Binner::new(k);
+        build_nodes(r.len(), *r, |r| split(refs, r, &mut binner, cfg, term))
+    };
+    let nodes = build_nodes_parallel(&mut refs, root, tuning.vertical_min, horizontal, vertical);
+    Bvh {
+        nodes,
+        prim_indices: refs.par_iter().map(|p| p.idx).collect(),
+    }
 }

@@ -1,0 +1,164 @@
+//! The parallel binned SAH (thesis 3.1.2) gives byte-identical trees to the sequential binned SAH
+//! for every parameter, speed knob and thread count, and they are valid.
+mod common;
+use bvhlab_build::binned_sah::{self, CentroidTermination, ParallelTuning};
+use bvhlab_build::TopDownConfig;
+use bvhlab_bvh::{validate, Aabb, Vec3};
+use common::*;
+
+fn pool(threads: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("thread pool")
+}
+
+fn generated(spec: &str) -> (Vec<Aabb>, Vec<Vec3>) {
+    bvhlab_geom::load_scene(spec)
+        .expect("generated scene")
+        .boxes_and_centers()
+}
+
+/// Small scenes with the hard cases: coincident centroids, flat, all points, far outlier, huge
+/// coordinates, one and two primitives, and the generators' degenerate mix and city.
+fn scenes() -> Vec<(String, Vec<Aabb>, Vec<Vec3>)> {
+    let mut v: Vec<(String, Vec<Aabb>, Vec<Vec3>)> = Vec::new();
+    for spec in [
+        "gen:sphere:n=4000",
+        "gen:degenerate:n=3000",
+        "gen:city:blocks=8",
+        "gen:outlier:n=2000,e=20",
+        "gen:outlier:n=2000,e=100",
+        "gen:hairball:n=2000",
+        "gen:terrain:n=2000",
+    ] {
+        let (b, c) = generated(spec);
+        v.push((spec.into(), b, c));
+    }
+    let huge: Vec<Aabb> = random_boxes(1500, 0.05, 9)
+        .into_iter()
+        .map(|b| Aabb::new(b.min * 1e30, b.max * 1e30))
+        .collect();
+    for (name, boxes) in [
+        ("random", random_boxes(3000, 0.05, 1)),
+        ("equal-centroids", equal_centroid_boxes(500)),
+        ("flat", flat_boxes(2000, 2)),
+        ("points", point_boxes(300)),
+        ("huge", huge),
+        ("one", random_boxes(1, 0.1, 3)),
+        ("two", random_boxes(2, 0.1, 4)),
+        ("two-equal", point_boxes(2)),
+    ] {
+        let c = centers_of(&boxes);
+        v.push((name.into(), boxes, c));
+    }
+    v
+}
+
+/// Tiny knobs run the horizontal phase (parallel binning and partition) down to single
+/// primitives and cut chunks into odd sizes; `vertical_min = 1` means no vertical tasks at all.
+const TUNINGS: [ParallelTuning; 4] = [
+    ParallelTuning {
+        vertical_min: 1,
+        chunk: 7,
+    },
+    ParallelTuning {
+        vertical_min: 2,
+        chunk: 1,
+    },
+    ParallelTuning {
+        vertical_min: 100,
+        chunk: 33,
+    },
+    ParallelTuning {
+        vertical_min: 1000,
+        chunk: 1024,
+    },
+];
+
+#[test]
+fn parallel_binned_is_byte_identical_to_sequential() {
+    let pools = [pool(1), pool(2), pool(3)];
+    for (scene, boxes, centers) in scenes() {
+        for leaf in [1, 2, 8] {
+            let cfg = TopDownConfig {
+                leaf,
+                ..Default::default()
+            };
+            for bins in [2, 16, 33] {
+                for term in [CentroidTermination::SplitAxis, CentroidTermination::AnyAxis] {
+                    let seq = binned_sah::build_with_termination(&boxes, &centers, bins, &cfg, term);
+                    if let Err(e) = validate(&seq, &boxes) {
+                        panic!("sequential on {scene}: {e}");
+                    }
+                    let want = seq.canonical_bytes();
+                    for (pi, p) in pools.iter().enumerate() {
+                        let what = format!(
+                            "{scene} leaf {leaf} bins {bins} {term:?} threads {}",
+                            pi + 1
+                        );
+                        let par = p.install(|| {
+                            binned_sah::build_parallel(&boxes, &centers, bins, &cfg, term)
+                        });
+                        assert!(par.canonical_bytes() == want, "build_parallel: {what}");
+                        for t in TUNINGS {
+                            let par = p.install(|| {
+                                binned_sah::build_parallel_tuned(
+                                    &boxes, &centers, bins, &cfg, term, t,
+                                )
+                            });
+                            if let Err(e) = validate(&par, &boxes) {
+                                panic!("{what} {t:?}: {e}");
+                            }
+                            assert!(par.canonical_bytes() == want, "{what} {t:?}");
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Above the default vertical threshold (4096 primitives), `build_parallel` itself takes the
+/// horizontal path at 2 and 3 threads.
+#[test]
+fn default_knobs_on_a_larger_scene() {
+    let (boxes, centers) = generated("gen:sphere:n=60000");
+    let cfg = TopDownConfig::default();
+    let term = CentroidTermination::default();
+    let seq = binned_sah::build(&boxes, &centers, 16, &cfg);
+    assert!(validate(&seq, &boxes).is_ok());
+    for threads in [1, 2, 3] {
+        let tuning = ParallelTuning::for_size(boxes.len(), threads);
+        assert!(
+            threads == 1 || tuning.vertical_min < boxes.len(),
+            "the root must be split horizontally"
+        );
+        let par = pool(threads)
+            .install(|| binned_sah::build_parallel(&boxes, &centers, 16, &cfg, term));
+        assert!(
+            par.canonical_bytes() == seq.canonical_bytes(),
+            "threads {threads}"
+        );
+    }
+}
+
+#[test]
+fn parallel_binned_on_empty_input() {
+    let p = pool(2);
+    let t = ParallelTuning {
+        vertical_min: 1,
+        chunk: 1,
+    };
+    let bvh = p.install(|| {
+        binned_sah::build_parallel_tuned(
+            &[],
+            &[],
+            16,
+            &TopDownConfig::default(),
+            CentroidTermination::default(),
+            t,
+        )
+    });
+    assert!(bvh.nodes.is_empty() && bvh.prim_indices.is_empty());
+}
