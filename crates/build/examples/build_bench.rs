@@ -1,25 +1,159 @@
-//! Times the builders on one scene: `cargo run --release -p bvhlab-build --example build_bench -- SCENE [runs=5]`.
-//! SCENE is a path (.obj / .obj.gz) or `gen:...`. Boxes and centres are computed once (not timed);
-//! each builder runs `runs` times; one JSON line per builder with median/min ms and the eq. 4 SAH
-//! cost (c_T = 3, c_I = 2) of the built tree.
+//! Times the builders on one scene:
+//! `cargo run --release -p bvhlab-build --example build_bench -- SCENE [runs=5] [threads=1] [BUILDERS]`
+//! SCENE is a path (.obj / .obj.gz) or `gen:...`. Everything runs inside a rayon pool of `threads`
+//! threads. BUILDERS is an optional comma-separated subset of: spatial-median, binned-sah,
+//! binned-sah-any-axis, sweep-sah, binned-sah-par, lbvh, aac-hq, aac-fast, ploc-10, ploc-25,
+//! ploc-100 (default: all). Boxes and centres are computed once (not timed); each builder runs
+//! `runs` times.
+//!
+//! The Morton-family times are the whole pipeline from boxes to a compacted tree: encode (Morton
+//! codes + sort, `bvhlab_morton::encode` with each builder's paper default bits), the bottom-up
+//! build, and the SAH compaction (`bvhlab_bvh::collapse`, thesis 3.6); `build_ms_median` is the
+//! median of the per-run totals and the three parts are reported separately (each its own median).
+//! One JSON line per builder with the eq. 4 SAH cost (c_T = 3, c_I = 2) of the final tree and
+//! `bvh_fnv`, a hash of its canonical bytes (equal hashes = identical trees, e.g. the parallel
+//! binned SAH vs the sequential one). A builder that panics (not implemented yet) gets an `error`
+//! line and the others still run.
+use bvhlab_build::aac::AacConfig;
 use bvhlab_build::binned_sah::CentroidTermination;
-use bvhlab_build::{binned_sah, spatial_median, sweep_sah, TopDownConfig};
-use bvhlab_bvh::{metrics, validate, Bvh};
+use bvhlab_build::ploc::PlocConfig;
+use bvhlab_build::{aac, binned_sah, lbvh, ploc, spatial_median, sweep_sah, SortedCodes, TopDownConfig};
+use bvhlab_bvh::{collapse::collapse, metrics, validate, Aabb, Bvh, CostParams, Vec3};
+use bvhlab_morton::{AutoFor, Bits, EncodeConfig};
+use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::time::Instant;
+
+const ALL: [&str; 11] = [
+    "spatial-median",
+    "binned-sah",
+    "binned-sah-any-axis",
+    "sweep-sah",
+    "binned-sah-par",
+    "lbvh",
+    "aac-hq",
+    "aac-fast",
+    "ploc-10",
+    "ploc-25",
+    "ploc-100",
+];
+
+/// Milliseconds of one run, split into the pipeline parts (encode and collapse are 0 for the
+/// top-down builders, which take boxes and centres directly and make multi-primitive leaves).
+#[derive(Clone, Copy, Default)]
+struct Parts {
+    encode: f64,
+    build: f64,
+    collapse: f64,
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// One run of `name`: the final tree and its timed parts.
+fn run(name: &str, boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> (Bvh, Parts) {
+    let mut p = Parts::default();
+    let t = Instant::now();
+    let top_down = match name {
+        "spatial-median" => Some(spatial_median::build(boxes, centers, cfg)),
+        "binned-sah" => Some(binned_sah::build(boxes, centers, 16, cfg)),
+        // The thesis' literal centroid termination (any dimension below 1e-7), for its BIN column.
+        "binned-sah-any-axis" => Some(binned_sah::build_with_termination(
+            boxes,
+            centers,
+            16,
+            cfg,
+            CentroidTermination::AnyAxis,
+        )),
+        "sweep-sah" => Some(sweep_sah::build(boxes, centers, cfg)),
+        "binned-sah-par" => Some(binned_sah::build_parallel(
+            boxes,
+            centers,
+            16,
+            cfg,
+            CentroidTermination::default(),
+        )),
+        _ => None,
+    };
+    if let Some(bvh) = top_down {
+        p.build = ms_since(t);
+        return (bvh, p);
+    }
+    let auto = match name {
+        "lbvh" => AutoFor::Lbvh,
+        "aac-hq" | "aac-fast" => AutoFor::Aac,
+        _ => AutoFor::Ploc,
+    };
+    let enc_cfg = EncodeConfig {
+        bits: Bits::Auto(auto),
+        ..Default::default()
+    };
+    let t = Instant::now();
+    let enc = bvhlab_morton::encode(boxes, centers, &enc_cfg);
+    p.encode = ms_since(t);
+    let sorted = SortedCodes {
+        order: &enc.order,
+        codes: &enc.codes,
+        code_bits: enc.code_bits,
+    };
+    let t = Instant::now();
+    let bvh = match name {
+        "lbvh" => lbvh::build(boxes, &sorted),
+        "aac-hq" => aac::build(boxes, &sorted, &AacConfig::HQ),
+        "aac-fast" => aac::build(boxes, &sorted, &AacConfig::FAST),
+        "ploc-10" => ploc::build(boxes, &sorted, &PlocConfig { radius: 10 }),
+        "ploc-25" => ploc::build(boxes, &sorted, &PlocConfig { radius: 25 }),
+        "ploc-100" => ploc::build(boxes, &sorted, &PlocConfig { radius: 100 }),
+        other => unreachable!("unknown builder {other}"),
+    };
+    p.build = ms_since(t);
+    let t = Instant::now();
+    let bvh = collapse(&bvh, cfg.cost);
+    p.collapse = ms_since(t);
+    (bvh, p)
+}
+
+/// 64-bit FNV-1a of the canonical bytes: enough to tell identical trees apart in a benchmark log.
+fn fnv(bvh: &Bvh) -> u64 {
+    bvh.canonical_bytes().iter().fold(0xcbf29ce484222325, |h, &b| {
+        (h ^ b as u64).wrapping_mul(0x100000001b3)
+    })
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn usage(msg: &str) -> ! {
+    eprintln!("{msg}\nusage: build_bench SCENE [runs=5] [threads=1] [BUILDERS (comma list)]");
+    eprintln!("builders: {}", ALL.join(","));
+    std::process::exit(2);
+}
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let Some(spec) = args.get(1) else {
-        eprintln!("usage: build_bench SCENE [runs=5]");
-        std::process::exit(2);
+        usage("missing SCENE")
     };
-    let runs: usize = match args.get(2).map(|s| s.parse()) {
-        None => 5,
+    let positive = |i: usize, what: &str, default: usize| match args.get(i).map(|s| s.parse()) {
+        None => default,
         Some(Ok(r)) if r > 0 => r,
-        Some(_) => {
-            eprintln!("runs must be a positive integer");
-            std::process::exit(2);
-        }
+        Some(_) => usage(&format!("{what} must be a positive integer")),
+    };
+    let runs = positive(2, "runs", 5);
+    let threads = positive(3, "threads", 1);
+    let selected: Vec<&str> = match args.get(4).map(String::as_str) {
+        None | Some("all") => ALL.to_vec(),
+        Some(list) => list
+            .split(',')
+            .map(|b| {
+                ALL.iter()
+                    .copied()
+                    .find(|a| *a == b)
+                    .unwrap_or_else(|| usage(&format!("unknown builder {b:?}")))
+            })
+            .collect(),
     };
     let scene = match bvhlab_geom::load_scene(spec) {
         Ok(s) => s,
@@ -30,56 +164,56 @@ fn main() {
     };
     let (boxes, centers) = scene.boxes_and_centers();
     let cfg = TopDownConfig::default();
-    type Builder<'a> = Box<dyn Fn() -> Bvh + 'a>;
-    let builders: Vec<(&str, Builder)> = vec![
-        (
-            "spatial-median",
-            Box::new(|| spatial_median::build(&boxes, &centers, &cfg)),
-        ),
-        (
-            "binned-sah",
-            Box::new(|| binned_sah::build(&boxes, &centers, 16, &cfg)),
-        ),
-        // The thesis' literal centroid termination (any dimension below 1e-7), for its BIN column.
-        (
-            "binned-sah-any-axis",
-            Box::new(|| {
-                binned_sah::build_with_termination(
-                    &boxes,
-                    &centers,
-                    16,
-                    &cfg,
-                    CentroidTermination::AnyAxis,
-                )
-            }),
-        ),
-        (
-            "sweep-sah",
-            Box::new(|| sweep_sah::build(&boxes, &centers, &cfg)),
-        ),
-    ];
-    for (name, build) in &builders {
-        let mut ms = Vec::with_capacity(runs);
+    let cost = CostParams::default();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("rayon pool");
+    for name in selected {
+        let head = format!(
+            "\"scene\":{spec:?},\"triangles\":{},\"builder\":\"{name}\",\"threads\":{threads},\"runs\":{runs}",
+            boxes.len()
+        );
+        let mut parts = Vec::with_capacity(runs);
         let mut bvh = Bvh::default();
-        for _ in 0..runs {
-            let t = Instant::now();
-            bvh = std::hint::black_box(build());
-            ms.push(t.elapsed().as_secs_f64() * 1e3);
+        let mut first_hash = None;
+        let mut deterministic = true;
+        let outcome = catch_unwind(AssertUnwindSafe(|| {
+            for _ in 0..runs {
+                let (b, p) = pool.install(|| run(name, &boxes, &centers, &cfg));
+                parts.push(p);
+                bvh = std::hint::black_box(b);
+                let h = fnv(&bvh);
+                deterministic &= *first_hash.get_or_insert(h) == h;
+            }
+        }));
+        if let Err(e) = outcome {
+            let msg = e
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| e.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_default();
+            println!("{{{head},\"error\":{:?}}}", format!("panicked: {msg}"));
+            continue;
         }
-        ms.sort_by(f64::total_cmp);
+        let mut total: Vec<f64> = parts.iter().map(|p| p.encode + p.build + p.collapse).collect();
+        let mut enc: Vec<f64> = parts.iter().map(|p| p.encode).collect();
+        let mut bld: Vec<f64> = parts.iter().map(|p| p.build).collect();
+        let mut col: Vec<f64> = parts.iter().map(|p| p.collapse).collect();
+        let total_med = median(&mut total);
         let valid = validate(&bvh, &boxes).err().unwrap_or_else(|| "ok".into());
-        let m = metrics(&bvh, cfg.cost);
+        let m = metrics(&bvh, cost);
         println!(
-            "{{\"scene\":{:?},\"triangles\":{},\"builder\":\"{name}\",\"runs\":{runs},\"build_ms_median\":{:.2},\"build_ms_min\":{:.2},\"sah_cost\":{:.3},\"leaves\":{},\"refs_per_leaf\":{:.3},\"depth\":{},\"valid\":{:?}}}",
-            spec,
-            boxes.len(),
-            ms[runs / 2],
-            ms[0],
+            "{{{head},\"build_ms_median\":{total_med:.2},\"build_ms_min\":{:.2},\"encode_ms_median\":{:.2},\"build_part_ms_median\":{:.2},\"collapse_ms_median\":{:.2},\"sah_cost\":{:.3},\"leaves\":{},\"refs_per_leaf\":{:.3},\"depth\":{},\"bvh_fnv\":\"{:016x}\",\"deterministic\":{deterministic},\"valid\":{valid:?}}}",
+            total[0],
+            median(&mut enc),
+            median(&mut bld),
+            median(&mut col),
             m.sah_cost,
             m.leaves,
             m.refs_per_leaf,
             m.depth,
-            valid
+            fnv(&bvh),
         );
     }
 }

@@ -236,19 +236,23 @@ pub struct ParallelTuning {
     /// Nodes with fewer primitives become independent tasks (vertical phase); larger nodes are
     /// split by all threads together (horizontal phase).
     pub vertical_min: usize,
-    /// Primitives per work item in the horizontal phase's parallel binning and partition.
-    pub chunk: usize,
+    /// Smallest work item (primitives) of the horizontal phase's parallel binning and partition;
+    /// a node of `n` primitives is cut into about 4 items per thread, none smaller than this.
+    pub min_chunk: usize,
 }
 
 impl ParallelTuning {
     /// For `n` primitives and `threads` threads: about 16 vertical tasks per thread (enough for
-    /// rayon's work stealing to even out unequal subtrees), chunks of a quarter thread's share.
+    /// rayon's work stealing to even out unequal subtrees), at least 4096 primitives each.
     pub fn for_size(n: usize, threads: usize) -> Self {
-        let threads = threads.max(1);
         ParallelTuning {
-            vertical_min: (n / (16 * threads)).max(4096),
-            chunk: (n / (4 * threads)).clamp(1024, 1 << 16),
+            vertical_min: (n / (16 * threads.max(1))).max(4096),
+            min_chunk: 1024,
         }
+    }
+    /// Work-item size for a node of `n` primitives.
+    fn chunk(&self, n: usize, threads: usize) -> usize {
+        n.div_ceil(4 * threads.max(1)).max(self.min_chunk).max(1)
     }
 }
 
@@ -282,7 +286,7 @@ pub fn build_parallel_tuned(
     use rayon::prelude::*;
     let (mut refs, root) = make_refs_parallel(boxes, centers);
     let k = bins.max(2) as usize;
-    let chunk = tuning.chunk.max(1);
+    let threads = rayon::current_num_threads();
     let mut flags = vec![false; refs.len()];
     let mut binner = Binner::new(k);
     // Horizontal phase: one node at a time, binning and partition spread over the threads.
@@ -292,6 +296,7 @@ pub fn build_parallel_tuned(
             Plan::Median(axis) => return Some(object_median(refs, r, axis)),
             Plan::Bin { axis, cb_min, k0 } => (axis, cb_min, k0),
         };
+        let chunk = tuning.chunk(r.len(), threads);
         // Per-chunk bins merged afterwards: counts add and boxes take min/max, both exact, so
         // the merged bins equal the sequential ones whatever the chunking.
         let (count, bounds) = refs[r.begin..r.end]

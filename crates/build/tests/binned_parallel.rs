@@ -60,19 +60,19 @@ fn scenes() -> Vec<(String, Vec<Aabb>, Vec<Vec3>)> {
 const TUNINGS: [ParallelTuning; 4] = [
     ParallelTuning {
         vertical_min: 1,
-        chunk: 7,
+        min_chunk: 7,
     },
     ParallelTuning {
         vertical_min: 2,
-        chunk: 1,
+        min_chunk: 1,
     },
     ParallelTuning {
         vertical_min: 100,
-        chunk: 33,
+        min_chunk: 33,
     },
     ParallelTuning {
         vertical_min: 1000,
-        chunk: 1024,
+        min_chunk: 1024,
     },
 ];
 
@@ -148,7 +148,7 @@ fn parallel_binned_on_empty_input() {
     let p = pool(2);
     let t = ParallelTuning {
         vertical_min: 1,
-        chunk: 1,
+        min_chunk: 1,
     };
     let bvh = p.install(|| {
         binned_sah::build_parallel_tuned(
