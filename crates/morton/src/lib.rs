@@ -1,9 +1,20 @@
 //! The encode stage's algorithms: per-primitive codes over a quantization frame, then a sort.
 //! Plain functions over boxes and centres; nothing here knows about files or caches.
 //!
-//! SKELETON (lead): the API below is fixed; the bodies are a simple reference version that the
-//! encoder work replaces (EMC layouts, concise bounds, occupation grid, parallel radix sort).
+//! Modules are named after the methods: `morton` (plain codes, thesis 2.3.4), `emc` (Extended
+//! Morton codes, Vinkler et al. 2017 / thesis 3.7.1), `bounds` (scene / centroid / concise frame,
+//! Riemersma 3.3), `grid` (occupation grid with mipping, Riemersma 3.2) and `radix` (parallel
+//! stable LSD radix sort).
+pub mod bounds;
+pub mod emc;
+pub mod grid;
+pub mod morton;
+pub mod radix;
+
+use bounds::Frame;
 use bvhlab_geom::{Aabb, Vec3};
+use emc::LayoutCoder;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Which code.
@@ -91,44 +102,94 @@ impl Encoding {
     }
 }
 
-/// Computes the codes of every primitive and sorts them.
-pub fn encode(boxes: &[Aabb], centers: &[Vec3], cfg: &EncodeConfig) -> Encoding {
-    assert_eq!(boxes.len(), centers.len());
-    let n = boxes.len();
-    let bits = match cfg.bits {
-        Bits::Fixed(b) => b.clamp(1, 21),
-        Bits::Auto(AutoFor::Aac) => {
-            // ceil(log4 n)
-            let mut b = 1;
-            while (1u64 << (2 * b)) < n as u64 {
-                b += 1;
-            }
-            b.min(21)
+/// A code generator over a box given in normalized coordinates: plain Morton (magic numbers) or a
+/// layout (EMC).
+enum Coder {
+    Morton { bits: u32 },
+    Layout(LayoutCoder),
+}
+
+impl Coder {
+    /// The scheme's coder for a box with extents `ext` (EMC layouts depend on the box's shape).
+    fn new(cfg: &EncodeConfig, n: usize, ext: [f64; 3]) -> Coder {
+        match cfg.scheme {
+            Scheme::Morton => Coder::Morton { bits: morton::bits_per_axis(cfg.bits, n) },
+            Scheme::Emc64Sort => Coder::Layout(LayoutCoder::new(emc::sort_layout(ext))),
+            Scheme::Emc64Var => Coder::Layout(LayoutCoder::new(emc::var_layout(ext))),
         }
-        Bits::Auto(AutoFor::Lbvh) => 10,
-        Bits::Auto(AutoFor::Ploc) => 20,
-    };
-    let mut frame = Aabb::EMPTY;
-    for b in boxes {
-        frame.grow(b);
     }
-    let ext = (frame.max - frame.min).max(Vec3::splat(f32::MIN_POSITIVE));
-    let scale = ((1u64 << bits) as f32) / ext;
-    let max = ((1u64 << bits) - 1) as f32;
-    let codes: Vec<u64> = centers
-        .iter()
-        .map(|c| {
-            let q = ((*c - frame.min) * scale).clamp(Vec3::ZERO, Vec3::splat(max));
-            let (x, y, z) = (q.x as u64, q.y as u64, q.z as u64);
-            let mut code = 0u64;
-            for i in (0..bits).rev() {
-                code = (code << 3) | (((x >> i) & 1) << 2) | (((y >> i) & 1) << 1) | ((z >> i) & 1);
-            }
-            code
-        })
-        .collect();
-    let mut order: Vec<u32> = (0..n as u32).collect();
-    order.sort_by_key(|&i| (codes[i as usize], i));
-    let sorted = order.iter().map(|&i| codes[i as usize]).collect();
-    Encoding { order, codes: sorted, code_bits: 3 * bits, frame, layout: "xyz".repeat(bits as usize) }
+
+    fn bits(&self) -> u32 {
+        match self {
+            Coder::Morton { bits } => 3 * bits,
+            Coder::Layout(l) => l.bits(),
+        }
+    }
+
+    fn layout(&self) -> String {
+        match self {
+            Coder::Morton { bits } => morton::layout(*bits),
+            Coder::Layout(l) => emc::layout_string(&l.letters),
+        }
+    }
+
+    /// Code of normalized coordinates `u` and normalized size `s`.
+    #[inline]
+    fn code(&self, u: [f64; 3], s: f64) -> u64 {
+        match self {
+            Coder::Morton { bits } => morton::code(u, *bits),
+            Coder::Layout(l) => l.code(u, s),
+        }
+    }
+
+    fn has_size(&self) -> bool {
+        matches!(self, Coder::Layout(l) if l.counts[3] > 0)
+    }
+}
+
+/// The scheme's spatial axis sequence (no size bits) over a box with extents `ext`: the order in
+/// which the occupation grid splits its cells.
+fn spatial_axes(scheme: Scheme, ext: [f64; 3], len: usize) -> Vec<u8> {
+    match scheme {
+        Scheme::Morton => (0..len).map(|i| [emc::X, emc::Y, emc::Z][i % 3]).collect(),
+        Scheme::Emc64Sort => emc::sort_axes(ext, len),
+        Scheme::Emc64Var => emc::var_axes(ext, len),
+    }
+}
+
+/// Computes the codes of every primitive (in parallel) and sorts them with the parallel radix
+/// sort; ties are ordered by primitive index. Never panics on degenerate input (empty input,
+/// coincident centroids, zero or huge extents); `boxes` and `centers` must have equal length.
+pub fn encode(boxes: &[Aabb], centers: &[Vec3], cfg: &EncodeConfig) -> Encoding {
+    assert_eq!(boxes.len(), centers.len(), "encode: one centre per box");
+    let n = boxes.len();
+    let frame_box = bounds::frame(boxes, centers, cfg.bounds);
+    let frame = Frame::new(&frame_box);
+    let coder = Coder::new(cfg, n, frame.ext);
+    let total = coder.bits();
+    let grid_bits = cfg.grid_bits.min(total).min(grid::MAX_GRID_BITS);
+
+    let (codes, layout) = if grid_bits == 0 {
+        let codes: Vec<u64> = if coder.has_size() {
+            let fd = frame.diag;
+            centers.par_iter().zip(boxes.par_iter()).map(|(&c, b)| coder.code(frame.normalize(c), bounds::size(b, fd))).collect()
+        } else {
+            centers.par_iter().map(|&c| coder.code(frame.normalize(c), 0.0)).collect()
+        };
+        (codes, coder.layout())
+    } else {
+        let letters = spatial_axes(cfg.scheme, frame.ext, grid_bits as usize);
+        let grid = grid::Grid::build(centers, &frame, &letters);
+        // The in-cell code is the scheme's code over the cell's own box (EMC layouts follow the
+        // cell's shape).
+        let incell = Coder::new(cfg, n, grid.cell_extent(&frame));
+        debug_assert_eq!(incell.bits(), total);
+        let codes = grid::codes(boxes, centers, &frame, &grid, total, |t, s| incell.code(t, s));
+        let lmax = grid.max_concise_len() as usize;
+        let mut layout = "g".repeat(lmax);
+        layout.extend(incell.layout().chars().take(total as usize - lmax));
+        (codes, layout)
+    };
+    let (codes, order) = radix::sort_with_index(codes);
+    Encoding { order, codes, code_bits: total, frame: frame_box, layout }
 }
