@@ -167,7 +167,8 @@ where
         first: 0,
         count: 0,
     };
-    let mut nodes = vec![placeholder; total];
+    // Filled in parallel: the first touch of a large array (page faults) costs as much as a copy.
+    let mut nodes: Vec<Node> = (0..total).into_par_iter().map(|_| placeholder).collect();
     // (global index of the task's root, first index of its descendant block, task id)
     let mut placed: Vec<(usize, usize, usize)> = Vec::with_capacity(tasks.len());
     let mut next = 1;

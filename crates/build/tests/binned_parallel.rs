@@ -162,3 +162,36 @@ fn parallel_binned_on_empty_input() {
     });
     assert!(bvh.nodes.is_empty() && bvh.prim_indices.is_empty());
 }
+
+/// Loading drops non-finite triangles, but the builder must still terminate on them. (Identical
+/// bytes are not promised here: min/max with NaN depend on the merge order.)
+#[test]
+fn parallel_binned_terminates_on_non_finite_boxes() {
+    let mut boxes = random_boxes(400, 0.05, 12);
+    boxes[3] = Aabb::new(Vec3::NAN, Vec3::NAN);
+    boxes[50].max.x = f32::INFINITY;
+    boxes[200].min.y = f32::NEG_INFINITY;
+    let centers = centers_of(&boxes);
+    let p = pool(2);
+    for leaf in [1, 2] {
+        let cfg = TopDownConfig {
+            leaf,
+            ..Default::default()
+        };
+        for t in TUNINGS {
+            let bvh = p.install(|| {
+                binned_sah::build_parallel_tuned(
+                    &boxes,
+                    &centers,
+                    16,
+                    &cfg,
+                    CentroidTermination::default(),
+                    t,
+                )
+            });
+            let mut ids = bvh.prim_indices.clone();
+            ids.sort_unstable();
+            assert!(ids.iter().copied().eq(0..400u32), "{t:?}: not a permutation");
+        }
+    }
+}
