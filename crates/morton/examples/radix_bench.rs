@@ -23,7 +23,6 @@ fn main() {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
             let mut t_radix = Vec::new();
-            let mut t_radix8 = Vec::new();
             let mut t_std = Vec::new();
             let mut t_par = Vec::new();
             for _ in 0..runs {
@@ -37,12 +36,6 @@ fn main() {
                     Some(r) => assert!(r == &order, "radix output differs between runs/thread counts"),
                 }
 
-                let input = codes.clone();
-                let t = Instant::now();
-                let (_, order8) = radix::sort_with_index_digits(input, 8);
-                t_radix8.push(t.elapsed().as_secs_f64());
-                assert!(reference.as_ref() == Some(&order8), "8-bit digits give another order");
-
                 let mut pairs: Vec<(u64, u32)> = codes.iter().enumerate().map(|(i, &c)| (c, i as u32)).collect();
                 let t = Instant::now();
                 pairs.sort_unstable();
@@ -54,8 +47,7 @@ fn main() {
                 t_par.push(t.elapsed().as_secs_f64());
             }
             let ms = |v: Vec<f64>| median(v) * 1e3;
-            println!("radix::sort_with_index   n={n} threads={threads} median_ms={:.1} (digit {} bits)", ms(t_radix), radix::DIGIT_BITS);
-            println!("radix (8-bit digits)     n={n} threads={threads} median_ms={:.1}", ms(t_radix8));
+            println!("radix::sort_with_index   n={n} threads={threads} median_ms={:.1}", ms(t_radix));
             println!("slice::sort_unstable     n={n} threads={threads} median_ms={:.1} (single-threaded anchor)", ms(t_std));
             println!("rayon par_sort_unstable  n={n} threads={threads} median_ms={:.1}", ms(t_par));
         });

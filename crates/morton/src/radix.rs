@@ -17,8 +17,8 @@
 //! constant bits are skipped (a 30-bit Morton code costs 3 passes, not 8; all-equal keys cost 0).
 use rayon::prelude::*;
 
-/// Widest digit per pass. 11 bits (2048 buckets) needs 6 passes for 64 random bits instead of 8;
-/// measured with `examples/radix_bench.rs` (the per-bucket write streams still fit the caches).
+/// Widest digit of the parallel passes over main memory (first pass, and buckets too large for
+/// the cache): 11 bits (2048 buckets) needs 6 passes for 64 varying bits instead of 8.
 pub const DIGIT_BITS: u32 = 11;
 
 /// Below this many keys per thread a pass runs on one chunk: splitting costs more than it saves.
@@ -39,10 +39,6 @@ pub fn sort_with_index(codes: Vec<u64>) -> (Vec<u64>, Vec<u32>) {
     sort_impl(codes, None, DIGIT_BITS)
 }
 
-/// `sort_with_index` with another digit width (1..=16), for benchmarks.
-pub fn sort_with_index_digits(codes: Vec<u64>, digit_bits: u32) -> (Vec<u64>, Vec<u32>) {
-    sort_impl(codes, None, digit_bits.clamp(1, 16))
-}
 
 /// Stable sort of `keys` carrying `vals` (same length). Returns the sorted pair of vectors.
 pub fn sort_pairs(keys: Vec<u64>, vals: Vec<u32>) -> (Vec<u64>, Vec<u32>) {
@@ -151,16 +147,39 @@ fn chunk_len(n: usize) -> usize {
 }
 
 /// Sequential LSD on the varying bits of `k` (in cache), 8-bit digits; `sk`, `sv` are scratch of
-/// the same length. The result ends in `k`, `v`.
+/// the same length. The result ends in `k`, `v`. All digit histograms come from one read (a
+/// permutation does not change them).
 fn lsd_seq(k: &mut [u64], v: &mut [u32], sk: &mut [u64], sv: &mut [u32]) {
     let k0 = k[0];
     let mask = k.iter().fold(0, |m, &x| m | (x ^ k0));
+    let mut plan = [(0u32, 0u32); 8];
+    let mut passes = 0;
+    let mut m = mask;
+    while m != 0 {
+        let lo = m.trailing_zeros();
+        plan[passes] = (lo, 8);
+        passes += 1;
+        m &= !(0xffu64.checked_shl(lo).unwrap_or(0));
+    }
+    let plan = &plan[..passes];
+    let mut hist = [[0usize; 256]; 8];
+    for &x in k.iter() {
+        for (h, &(shift, _)) in hist.iter_mut().zip(plan) {
+            h[((x >> shift) & 0xff) as usize] += 1;
+        }
+    }
     let mut in_scratch = false;
-    for (shift, width) in digit_plan(mask, 8) {
+    for (h, &(shift, _)) in hist.iter_mut().zip(plan) {
+        let mut sum = 0;
+        for o in h.iter_mut() {
+            let c = *o;
+            *o = sum;
+            sum += c;
+        }
         if in_scratch {
-            scatter_seq(sk, sv, k, v, shift, width);
+            scatter_seq(sk, sv, k, v, shift, h);
         } else {
-            scatter_seq(k, v, sk, sv, shift, width);
+            scatter_seq(k, v, sk, sv, shift, h);
         }
         in_scratch = !in_scratch;
     }
@@ -170,21 +189,11 @@ fn lsd_seq(k: &mut [u64], v: &mut [u32], sk: &mut [u64], sv: &mut [u32]) {
     }
 }
 
-fn scatter_seq(src_k: &[u64], src_v: &[u32], dst_k: &mut [u64], dst_v: &mut [u32], shift: u32, width: u32) {
-    let dmask = low_mask(width);
-    let mut off = [0usize; 256];
-    let off = &mut off[..1 << width];
-    for &x in src_k {
-        off[((x >> shift) & dmask) as usize] += 1;
-    }
-    let mut sum = 0;
-    for o in off.iter_mut() {
-        let c = *o;
-        *o = sum;
-        sum += c;
-    }
+#[inline]
+fn scatter_seq(src_k: &[u64], src_v: &[u32], dst_k: &mut [u64], dst_v: &mut [u32], shift: u32, off: &mut [usize; 256]) {
+    let (dst_k, dst_v) = (&mut dst_k[..src_k.len()], &mut dst_v[..src_k.len()]);
     for (&x, &val) in src_k.iter().zip(src_v) {
-        let d = ((x >> shift) & dmask) as usize;
+        let d = ((x >> shift) & 0xff) as usize;
         let o = off[d];
         off[d] = o + 1;
         dst_k[o] = x;
