@@ -1,8 +1,9 @@
 //! Duplicate fractions on the far-outlier scene (Riemersma 2024's failure case):
 //! `cargo run --release -p bvhlab-morton --example outlier_dups [E...]` (default e = 0 10 20 30).
 //! One line per (e, encoder): duplicate_fraction, code bits, longest grid prefix (layout `g`s),
-//! encode time (one run, for orientation only).
-use bvhlab_morton::{encode, Bits, BoundsMode, EncodeConfig, Scheme};
+//! encode time (one run, for orientation only). `+tight` rows use `CellFrame::Tight` (an
+//! extension: in-cell code over the tight centroid bounds of the cell).
+use bvhlab_morton::{encode_cells, Bits, BoundsMode, CellFrame, EncodeConfig, Scheme};
 use std::time::Instant;
 
 fn main() {
@@ -36,13 +37,16 @@ fn main() {
         let spec = format!("gen:outlier:e={e}");
         let scene = bvhlab_geom::load_scene(&spec).expect("scene");
         let (boxes, centers) = scene.boxes_and_centers();
-        for (name, cfg) in &configs {
+        let tight = configs.iter().filter(|(_, c)| c.grid_bits > 0).map(|(n, c)| (format!("{n}+tight"), *c, CellFrame::Tight));
+        let all: Vec<(String, EncodeConfig, CellFrame)> =
+            configs.iter().map(|(n, c)| (n.to_string(), *c, CellFrame::Lattice)).chain(tight).collect();
+        for (name, cfg, cf) in &all {
             let t = Instant::now();
-            let enc = encode(&boxes, &centers, cfg);
+            let enc = encode_cells(&boxes, &centers, cfg, *cf);
             let ms = t.elapsed().as_secs_f64() * 1e3;
             let g = enc.layout.chars().take_while(|&c| c == 'g').count();
             println!(
-                "{spec:<20} n={:<6} {name:<20} dup={:.4} code_bits={} grid_prefix_max={g} encode_ms={ms:.2}",
+                "{spec:<20} n={:<6} {name:<26} dup={:.4} code_bits={} grid_prefix_max={g} encode_ms={ms:.2}",
                 boxes.len(),
                 enc.duplicate_fraction(),
                 enc.code_bits

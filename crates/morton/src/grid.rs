@@ -196,10 +196,73 @@ fn shr(v: u64, s: u32) -> u64 {
     v.checked_shr(s).unwrap_or(0)
 }
 
+/// Per-cell affine map of in-cell coordinates onto the tight bounds of the cell's centroids
+/// (`CellFrame::Tight`): `t' = (t - min) * inv`.
+#[derive(Clone, Copy, Debug)]
+pub struct TightCell {
+    pub min: [f64; 3],
+    pub inv: [f64; 3],
+}
+
+/// Tight centroid bounds of every cell, in in-cell coordinates (an extension, not in Riemersma:
+/// see `CellFrame::Tight`). Min/max reductions, so deterministic at any thread count.
+pub fn tight_cells(centers: &[Vec3], frame: &Frame, grid: &Grid) -> Vec<TightCell> {
+    let cells = 1usize << grid.bits;
+    let empty = || vec![[f64::INFINITY, f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY]; cells];
+    let b = centers
+        .par_chunks(1 << 14)
+        .fold(empty, |mut acc, chunk| {
+            for &c in chunk {
+                let (g, t) = grid.cell(frame.normalize(c));
+                let e = &mut acc[g as usize];
+                for a in 0..3 {
+                    // NaN never wins a comparison, so it cannot poison the bounds.
+                    if t[a] < e[a] {
+                        e[a] = t[a];
+                    }
+                    if t[a] > e[3 + a] {
+                        e[3 + a] = t[a];
+                    }
+                }
+            }
+            acc
+        })
+        .reduce(empty, |mut a, b| {
+            for (x, y) in a.iter_mut().zip(&b) {
+                for k in 0..3 {
+                    x[k] = x[k].min(y[k]);
+                    x[3 + k] = x[3 + k].max(y[3 + k]);
+                }
+            }
+            a
+        });
+    b.iter()
+        .map(|e| {
+            let mut tc = TightCell { min: [0.0; 3], inv: [0.0; 3] };
+            for a in 0..3 {
+                let ext = e[3 + a] - e[a];
+                if e[a].is_finite() && ext > 0.0 && ext.is_finite() {
+                    tc.min[a] = e[a];
+                    tc.inv[a] = 1.0 / ext;
+                }
+            }
+            tc
+        })
+        .collect()
+}
+
 /// Codes of all primitives: concise index, then the top `total - L` bits of the in-cell code
 /// `incell(t, s)` (a `total`-bit code of the in-cell coordinates `t` and the size `s` normalized
-/// by the cell diagonal).
-pub fn codes<F>(boxes: &[Aabb], centers: &[Vec3], frame: &Frame, grid: &Grid, total: u32, incell: F) -> Vec<u64>
+/// by the cell diagonal). With `tight`, `t` is first mapped onto the cell's tight bounds.
+pub fn codes<F>(
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    frame: &Frame,
+    grid: &Grid,
+    total: u32,
+    tight: Option<&[TightCell]>,
+    incell: F,
+) -> Vec<u64>
 where
     F: Fn([f64; 3], f64) -> u64 + Sync,
 {
@@ -208,7 +271,13 @@ where
         .par_iter()
         .zip(boxes.par_iter())
         .map(|(&c, b)| {
-            let (g, t) = grid.cell(frame.normalize(c));
+            let (g, mut t) = grid.cell(frame.normalize(c));
+            if let Some(tc) = tight {
+                let tc = &tc[g as usize];
+                for a in 0..3 {
+                    t[a] = (t[a] - tc.min[a]) * tc.inv[a];
+                }
+            }
             let (prefix, len) = grid.concise[g as usize];
             let len = len as u32;
             let s = if cell_diag > 0.0 && cell_diag.is_finite() { box_diag(b) / cell_diag } else { 0.0 };

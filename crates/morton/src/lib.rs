@@ -157,10 +157,26 @@ fn spatial_axes(scheme: Scheme, ext: [f64; 3], len: usize) -> Vec<u8> {
     }
 }
 
+/// Which box the occupation grid's in-cell code quantizes (only with `grid_bits > 0`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum CellFrame {
+    /// The grid cell itself (Riemersma 3.2.2: "the cells' bounds are smaller than the bounds of
+    /// the scene"). What `encode` does.
+    Lattice,
+    /// EXTENSION (not in the papers): the bounds of the centroids inside the cell, so a dense
+    /// object far from an outlier gets the whole in-cell code however far the outlier is.
+    Tight,
+}
+
 /// Computes the codes of every primitive (in parallel) and sorts them with the parallel radix
 /// sort; ties are ordered by primitive index. Never panics on degenerate input (empty input,
 /// coincident centroids, zero or huge extents); `boxes` and `centers` must have equal length.
 pub fn encode(boxes: &[Aabb], centers: &[Vec3], cfg: &EncodeConfig) -> Encoding {
+    encode_cells(boxes, centers, cfg, CellFrame::Lattice)
+}
+
+/// `encode` with a choice of the occupation grid's in-cell frame (`encode` = `CellFrame::Lattice`).
+pub fn encode_cells(boxes: &[Aabb], centers: &[Vec3], cfg: &EncodeConfig, cell_frame: CellFrame) -> Encoding {
     assert_eq!(boxes.len(), centers.len(), "encode: one centre per box");
     let n = boxes.len();
     let frame_box = bounds::frame(boxes, centers, cfg.bounds);
@@ -184,7 +200,11 @@ pub fn encode(boxes: &[Aabb], centers: &[Vec3], cfg: &EncodeConfig) -> Encoding 
         // cell's shape).
         let incell = Coder::new(cfg, n, grid.cell_extent(&frame));
         debug_assert_eq!(incell.bits(), total);
-        let codes = grid::codes(boxes, centers, &frame, &grid, total, |t, s| incell.code(t, s));
+        let tight = match cell_frame {
+            CellFrame::Lattice => None,
+            CellFrame::Tight => Some(grid::tight_cells(centers, &frame, &grid)),
+        };
+        let codes = grid::codes(boxes, centers, &frame, &grid, total, tight.as_deref(), |t, s| incell.code(t, s));
         let lmax = grid.max_concise_len() as usize;
         let mut layout = "g".repeat(lmax);
         layout.extend(incell.layout().chars().take(total as usize - lmax));

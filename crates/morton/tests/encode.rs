@@ -2,7 +2,9 @@
 //! concise bounds (Riemersma eq. 15), the occupation grid, the far-outlier scene and degenerate input.
 use bvhlab_geom::rng::SplitMix64;
 use bvhlab_geom::{Aabb, Vec3};
-use bvhlab_morton::{bounds, encode, morton, radix, AutoFor, Bits, BoundsMode, EncodeConfig, Encoding, Scheme};
+use bvhlab_morton::{
+    bounds, encode, encode_cells, morton, radix, AutoFor, Bits, BoundsMode, CellFrame, EncodeConfig, Encoding, Scheme,
+};
 
 fn reference_sort(codes: &[u64]) -> (Vec<u64>, Vec<u32>) {
     let mut idx: Vec<u32> = (0..codes.len() as u32).collect();
@@ -126,6 +128,18 @@ fn encodings_valid_and_deterministic_across_threads() {
         if cfg.bits == Bits::Fixed(21) || cfg.scheme == Scheme::Emc64Var {
             assert!(one.duplicate_fraction() < 0.05, "{cfg:?}: {}", one.duplicate_fraction());
         }
+        if cfg.grid_bits > 0 {
+            let tight = |t: usize| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(t)
+                    .build()
+                    .unwrap()
+                    .install(|| encode_cells(&boxes, &centers, &cfg, CellFrame::Tight))
+            };
+            let one = tight(1);
+            check_valid(&one, boxes.len(), &format!("tight {cfg:?}"));
+            assert!(one == tight(2), "tight {cfg:?}: 1 vs 2 threads");
+        }
     }
 }
 
@@ -238,9 +252,13 @@ fn grid_keeps_cell_order_and_is_prefix_free() {
 }
 
 fn dup(spec: &str, cfg: EncodeConfig) -> f64 {
+    dup_cells(spec, cfg, CellFrame::Lattice)
+}
+
+fn dup_cells(spec: &str, cfg: EncodeConfig, cf: CellFrame) -> f64 {
     let scene = bvhlab_geom::load_scene(spec).unwrap();
     let (boxes, centers) = scene.boxes_and_centers();
-    encode(&boxes, &centers, &cfg).duplicate_fraction()
+    encode_cells(&boxes, &centers, &cfg, cf).duplicate_fraction()
 }
 
 #[test]
@@ -259,6 +277,9 @@ fn outlier_duplicates() {
     assert!(grid63 < plain63 - 0.2, "grid12 {grid63} vs plain {plain63}");
     let grid30 = dup(spec, m(10, 12));
     assert!(grid30 <= plain30);
+    // The tight-cell extension gives the sphere the whole in-cell code, even with 30 bits.
+    let tight30 = dup_cells(spec, m(10, 6), CellFrame::Tight);
+    assert!(tight30 < 0.1, "tight grid6 30-bit {tight30}");
     // At e = 10 the grid helps even the 30-bit code.
     let spec = "gen:outlier:n=5000,e=10";
     let (p, g) = (dup(spec, m(10, 0)), dup(spec, m(10, 12)));
