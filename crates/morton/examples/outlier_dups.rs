@@ -15,7 +15,12 @@ fn main() {
             a
         }
     };
-    let m = |bits| EncodeConfig { scheme: Scheme::Morton, bits: Bits::Fixed(bits), bounds: BoundsMode::Scene, grid_bits: 0 };
+    let m = |bits| EncodeConfig {
+        scheme: Scheme::Morton,
+        bits: Bits::Fixed(bits),
+        bounds: BoundsMode::Scene,
+        grid_bits: 0,
+    };
     let configs: Vec<(&str, EncodeConfig)> = vec![
         ("morton:10", m(10)),
         ("morton:10+concise", EncodeConfig { bounds: BoundsMode::Concise, ..m(10) }),
@@ -37,7 +42,8 @@ fn main() {
         let spec = format!("gen:outlier:e={e}");
         let scene = bvhlab_geom::load_scene(&spec).expect("scene");
         let (boxes, centers) = scene.boxes_and_centers();
-        let tight = configs.iter().filter(|(_, c)| c.grid_bits > 0).map(|(n, c)| (format!("{n}+tight"), *c, CellFrame::Tight));
+        let tight =
+            configs.iter().filter(|(_, c)| c.grid_bits > 0).map(|(n, c)| (format!("{n}+tight"), *c, CellFrame::Tight));
         let all: Vec<(String, EncodeConfig, CellFrame)> =
             configs.iter().map(|(n, c)| (n.to_string(), *c, CellFrame::Lattice)).chain(tight).collect();
         for (name, cfg, cf) in &all {

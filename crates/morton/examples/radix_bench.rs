@@ -48,7 +48,10 @@ fn main() {
             }
             let ms = |v: Vec<f64>| median(v) * 1e3;
             println!("radix::sort_with_index   n={n} threads={threads} median_ms={:.1}", ms(t_radix));
-            println!("slice::sort_unstable     n={n} threads={threads} median_ms={:.1} (single-threaded anchor)", ms(t_std));
+            println!(
+                "slice::sort_unstable     n={n} threads={threads} median_ms={:.1} (single-threaded anchor)",
+                ms(t_std)
+            );
             println!("rayon par_sort_unstable  n={n} threads={threads} median_ms={:.1}", ms(t_par));
         });
     }

@@ -8,7 +8,11 @@ const MIN_LEN: usize = 1 << 14;
 
 /// Union of the primitive boxes.
 pub fn scene_bounds(boxes: &[Aabb]) -> Aabb {
-    boxes.par_iter().with_min_len(MIN_LEN).fold(|| Aabb::EMPTY, |a, b| a.union(b)).reduce(|| Aabb::EMPTY, |a, b| a.union(&b))
+    boxes
+        .par_iter()
+        .with_min_len(MIN_LEN)
+        .fold(|| Aabb::EMPTY, |a, b| a.union(b))
+        .reduce(|| Aabb::EMPTY, |a, b| a.union(&b))
 }
 
 /// Bounds of the centroids.

@@ -177,7 +177,11 @@ impl Grid {
 
     /// Longest concise index over occupied cells.
     pub fn max_concise_len(&self) -> u32 {
-        (0..self.concise.len()).filter(|&g| get_bit(&self.layers[0], g)).map(|g| self.concise[g].1 as u32).max().unwrap_or(0)
+        (0..self.concise.len())
+            .filter(|&g| get_bit(&self.layers[0], g))
+            .map(|g| self.concise[g].1 as u32)
+            .max()
+            .unwrap_or(0)
     }
 
     /// Extents of a cell, for the in-cell coder.
@@ -208,7 +212,12 @@ pub struct TightCell {
 /// see `CellFrame::Tight`). Min/max reductions, so deterministic at any thread count.
 pub fn tight_cells(centers: &[Vec3], frame: &Frame, grid: &Grid) -> Vec<TightCell> {
     let cells = 1usize << grid.bits;
-    let empty = || vec![[f64::INFINITY, f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY]; cells];
+    let empty = || {
+        vec![
+            [f64::INFINITY, f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+            cells
+        ]
+    };
     let b = centers
         .par_chunks(1 << 14)
         .fold(empty, |mut acc, chunk| {
@@ -274,9 +283,7 @@ where
             let (g, mut t) = grid.cell(frame.normalize(c));
             if let Some(tc) = tight {
                 let tc = &tc[g as usize];
-                for a in 0..3 {
-                    t[a] = (t[a] - tc.min[a]) * tc.inv[a];
-                }
+                t = [0, 1, 2].map(|a| (t[a] - tc.min[a]) * tc.inv[a]);
             }
             let (prefix, len) = grid.concise[g as usize];
             let len = len as u32;
@@ -294,8 +301,8 @@ mod tests {
     fn lookup_table() {
         let t = necessary_table();
         // All 8 sub-cells occupied: every split is necessary, the index is the child itself.
-        for c in 0..8 {
-            assert_eq!(t[0xff][c], (c as u8, 3));
+        for (c, &e) in t[0xff].iter().enumerate() {
+            assert_eq!(e, (c as u8, 3));
         }
         // Only one sub-cell occupied: nothing is necessary.
         assert_eq!(t[1 << 5][5], (0, 0));

@@ -188,7 +188,11 @@ pub fn encode_cells(boxes: &[Aabb], centers: &[Vec3], cfg: &EncodeConfig, cell_f
     let (codes, layout) = if grid_bits == 0 {
         let codes: Vec<u64> = if coder.has_size() {
             let fd = frame.diag;
-            centers.par_iter().zip(boxes.par_iter()).map(|(&c, b)| coder.code(frame.normalize(c), bounds::size(b, fd))).collect()
+            centers
+                .par_iter()
+                .zip(boxes.par_iter())
+                .map(|(&c, b)| coder.code(frame.normalize(c), bounds::size(b, fd)))
+                .collect()
         } else {
             centers.par_iter().map(|&c| coder.code(frame.normalize(c), 0.0)).collect()
         };

@@ -111,6 +111,7 @@ mod tests {
         assert_eq!(quantize(f64::NAN, 4), 0);
         assert_eq!(quantize(1.0, 4), 15);
         assert_eq!(quantize(0.5, 4), 8);
-        assert_eq!(quantize(0.999, 64), u64::MAX.min((0.999 * 2f64.powi(64)) as u64));
+        assert_eq!(quantize(0.999, 64), (0.999 * 2f64.powi(64)) as u64);
+        assert_eq!(quantize(2.0, 64), u64::MAX);
     }
 }

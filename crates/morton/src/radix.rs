@@ -39,7 +39,6 @@ pub fn sort_with_index(codes: Vec<u64>) -> (Vec<u64>, Vec<u32>) {
     sort_impl(codes, None, DIGIT_BITS)
 }
 
-
 /// Stable sort of `keys` carrying `vals` (same length). Returns the sorted pair of vectors.
 pub fn sort_pairs(keys: Vec<u64>, vals: Vec<u32>) -> (Vec<u64>, Vec<u32>) {
     assert_eq!(keys.len(), vals.len(), "radix::sort_pairs: keys and values differ in length");

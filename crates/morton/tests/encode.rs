@@ -54,7 +54,11 @@ fn radix_matches_std_sort() {
 fn radix_deterministic_across_threads() {
     let codes = random_codes(200_000, 11, 0x0000_ffff_0000_ffff);
     let run = |t: usize| {
-        rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap().install(|| radix::sort_with_index(codes.clone()))
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build()
+            .unwrap()
+            .install(|| radix::sort_with_index(codes.clone()))
     };
     let one = run(1);
     assert_eq!(one, run(2));
@@ -294,9 +298,23 @@ fn degenerate_inputs() {
         ("empty", vec![]),
         ("one", vec![Aabb::new(p, p + 1.0)]),
         ("all centroids equal", vec![Aabb::new(p - 1.0, p + 1.0), Aabb::new(p - 2.0, p + 2.0), Aabb::from_point(p)]),
-        ("huge coordinates", vec![Aabb::new(Vec3::splat(-1e30), Vec3::splat(-1e30 + 1e24)), Aabb::from_point(Vec3::splat(1e30)), Aabb::from_point(Vec3::ZERO)]),
+        (
+            "huge coordinates",
+            vec![
+                Aabb::new(Vec3::splat(-1e30), Vec3::splat(-1e30 + 1e24)),
+                Aabb::from_point(Vec3::splat(1e30)),
+                Aabb::from_point(Vec3::ZERO),
+            ],
+        ),
         ("zero-extent axis", (0..50).map(|i| Aabb::from_point(Vec3::new(i as f32, 0.5 * i as f32, 7.0))).collect()),
-        ("max floats", vec![Aabb::from_point(Vec3::splat(f32::MAX)), Aabb::from_point(Vec3::splat(-f32::MAX)), Aabb::from_point(Vec3::ONE)]),
+        (
+            "max floats",
+            vec![
+                Aabb::from_point(Vec3::splat(f32::MAX)),
+                Aabb::from_point(Vec3::splat(-f32::MAX)),
+                Aabb::from_point(Vec3::ONE),
+            ],
+        ),
         ("empty box", vec![Aabb::EMPTY, Aabb::from_point(p)]),
     ];
     cases.push(("coincident many", vec![Aabb::from_point(p); 1000]));
