@@ -42,16 +42,19 @@ pub fn concise_bounds(bounds: Aabb, centroids: Aabb) -> Aabb {
     Aabb::new(bounds.min + difference, bounds.max - difference)
 }
 
-/// The frame of a bounds mode.
+/// The frame of a bounds mode. Adding +0.0 turns -0.0 into +0.0: `min`/`max` of -0.0 and +0.0
+/// may return either, so without it the frame's bytes could depend on the reduction order (the
+/// thread count).
 pub fn frame(boxes: &[Aabb], centers: &[Vec3], mode: BoundsMode) -> Aabb {
-    match mode {
+    let f = match mode {
         BoundsMode::Scene => scene_bounds(boxes),
         BoundsMode::Centroids => centroid_bounds(centers),
         BoundsMode::Concise => {
             let (b, c) = rayon::join(|| scene_bounds(boxes), || centroid_bounds(centers));
             concise_bounds(b, c)
         }
-    }
+    };
+    Aabb::new(f.min + Vec3::ZERO, f.max + Vec3::ZERO)
 }
 
 /// The frame in f64, ready for normalizing: `u = (p - min) * inv` is 0..1 inside the frame.
@@ -127,6 +130,18 @@ pub fn size(b: &Aabb, frame_diag: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn frame_has_no_negative_zero() {
+        let boxes = [Aabb::from_point(Vec3::new(-0.0, 0.0, -0.0)), Aabb::from_point(Vec3::new(0.0, -0.0, 1.0))];
+        let centers = [boxes[0].min, boxes[1].min];
+        for mode in [BoundsMode::Scene, BoundsMode::Centroids, BoundsMode::Concise] {
+            let f = frame(&boxes, &centers, mode);
+            for v in [f.min, f.max] {
+                assert!(v.to_array().iter().all(|x| !x.is_sign_negative()), "{mode:?}: {f:?}");
+            }
+        }
+    }
 
     #[test]
     fn degenerate_frames() {
