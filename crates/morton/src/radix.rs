@@ -104,7 +104,8 @@ fn sort_impl(keys: Vec<u64>, vals: Option<Vec<u32>>, digit_bits: u32) -> (Vec<u6
     let w1 = ceil_log2(n / CACHE_BUCKET).clamp(1, MSD_BITS).min(hi - lo + 1);
     let shift1 = hi + 1 - w1;
     let chunk_len = chunk_len(n);
-    let (mut tk, mut tv) = (vec![0u64; n], vec![0u32; n]);
+    // Zeroed in parallel: the first touch of fresh pages (page faults) is a large part of a pass.
+    let (mut tk, mut tv) = rayon::join(|| zeroed::<u64>(n), || zeroed::<u32>(n));
     let starts = pass(&keys, vals.as_deref(), &mut tk, &mut tv, shift1, w1, chunk_len);
     if mask & low_mask(shift1) == 0 {
         return (tk, tv);
@@ -138,6 +139,10 @@ fn sort_impl(keys: Vec<u64>, vals: Option<Vec<u32>>, digit_bits: u32) -> (Vec<u6
     });
     drop(scratch_k);
     (tk, tv)
+}
+
+fn zeroed<T: Default + Send + Copy>(n: usize) -> Vec<T> {
+    (0..n).into_par_iter().with_min_len(1 << 16).map(|_| T::default()).collect()
 }
 
 fn chunk_len(n: usize) -> usize {
