@@ -1,7 +1,32 @@
-//! Approximate Agglomerative Clustering (Gu et al. 2013, thesis 3.2). SKELETON: implemented by the
-//! AAC work.
+//! Approximate Agglomerative Clustering (Gu et al. 2013; thesis 3.2).
+//!
+//! The primitives arrive sorted by their codes. The *constraint tree* splits a code-sorted range at
+//! the first primitive whose code has the current bit set, walking the bits from the most significant
+//! one down (thesis 3.2.1, binary search on the sorted codes). A range with fewer than `delta`
+//! primitives is a constraint-tree leaf. Clustering runs in post order: a leaf's primitives are
+//! greedily merged (closest pair by the surface area of the union box, Walter et al. 2008) until
+//! `f(delta)` clusters remain; an inner node unites its children's cluster sets and merges until
+//! `f(|P|)` remain, `|P|` being the node's primitive count; the root merges until one is left. The
+//! reduction function is `f(x) = c x^alpha`, `c = delta^(1/2 + eps) / 2`, `alpha = 1/2 - eps`
+//! (Gu et al. 2013, section 4; the thesis gives `c` and the form `c x^alpha`), so `f(delta) = delta/2`.
+//!
+//! Distance-matrix reuse (thesis 3.2.2, Gu et al. figure 12): the clusters of all sets that are
+//! alive at once sit in one array in post order (a left sibling's set directly before the set being
+//! built), and their packed lower-triangular distance matrices are stacked the same way. Merging
+//! puts the new cluster at the lower of the two positions and moves the last cluster into the higher
+//! one; only the new cluster's distances are computed, and the nearest neighbour is rescanned (from
+//! the matrix) only for clusters whose neighbour was one of the merged two. Uniting two sibling sets
+//! computes only the cross distances.
+//!
+//! Parallel: constraint subtrees with at least [`PAR_MIN`] primitives are built with `rayon::join`
+//! (Gu et al.'s suggested scheme: each task has its own cluster array and matrix; results are united
+//! at the higher levels). A task's merges are appended in post order with its inner-node ids shifted
+//! by the merges before it, so the output is the sequential one, bit for bit, at any thread count.
+use crate::bottomup::{to_bvh, ClusterTree};
+use crate::boxa::BoxA;
 use crate::sorted::SortedCodes;
 use bvhlab_bvh::{Aabb, Bvh};
+use glam::Vec3A;
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -14,13 +39,557 @@ pub struct AacConfig {
 
 impl AacConfig {
     /// High Quality: delta = 20, epsilon = 0.1 (thesis table 2, "AHQ").
-    pub const HQ: AacConfig = AacConfig { delta: 20, epsilon: 0.1 };
+    pub const HQ: AacConfig = AacConfig {
+        delta: 20,
+        epsilon: 0.1,
+    };
     /// High Performance ("fast", "ALQ"): delta = 4, epsilon = 0.2.
-    pub const FAST: AacConfig = AacConfig { delta: 4, epsilon: 0.2 };
+    pub const FAST: AacConfig = AacConfig {
+        delta: 4,
+        epsilon: 0.2,
+    };
 }
+
+/// Constraint subtrees at least this large are handed to `rayon::join`. Below it a task is a few
+/// hundred microseconds of work, so the join overhead is negligible.
+pub const PAR_MIN: usize = 1 << 12;
 
 /// One primitive per leaf; the caller applies the SAH compaction.
 pub fn build(boxes: &[Aabb], sorted: &SortedCodes, cfg: &AacConfig) -> Bvh {
-    let _ = (boxes, sorted, cfg);
-    unimplemented!("aac: not yet implemented")
+    let n = sorted.order.len();
+    assert_eq!(sorted.codes.len(), n, "aac: one code per sorted primitive");
+    assert!(n <= boxes.len(), "aac: more sorted primitives than boxes");
+    if n == 0 {
+        return Bvh::default();
+    }
+    assert!(n < (u32::MAX / 2) as usize, "aac: cluster ids are u32");
+    let inp = Input::new(boxes, sorted, cfg);
+    let mut ctx = Clusters::new(n as u32);
+    let root = build_node(&mut ctx, &inp, 0, n);
+    // The root keeps merging until one cluster is left (Gu et al.: CombineClusters(C, 1)); continuing
+    // the greedy loop from f(n) is the same as stopping at f(n) first.
+    ctx.reduce(root, 1);
+    debug_assert_eq!(ctx.merges.len(), n - 1);
+    let root = ctx.id[0];
+    to_bvh(
+        boxes,
+        &ClusterTree {
+            leaf_prims: sorted.order,
+            children: &ctx.merges,
+            root,
+        },
+    )
+}
+
+/// Reduction function `f(x) = c x^alpha` of Gu et al. 2013, rounded to the nearest integer (the
+/// papers leave the rounding open; at `x = delta` this is exactly `delta / 2` for even delta), at
+/// least 1. Small arguments come from a table: every constraint node asks for one value.
+pub fn reduction(cfg: &AacConfig, x: usize) -> usize {
+    let delta = cfg.delta.max(1) as f64;
+    let eps = cfg.epsilon as f64;
+    let (c, alpha) = (delta.powf(0.5 + eps) / 2.0, 0.5 - eps);
+    round_target(c * (x as f64).powf(alpha))
+}
+
+fn round_target(v: f64) -> usize {
+    // NaN (a NaN epsilon) and tiny values become 1; `as` saturates huge ones.
+    if v >= 1.0 {
+        v.round() as usize
+    } else {
+        1
+    }
+}
+
+const TABLE: usize = 4096;
+
+/// Read-only input shared by all tasks.
+struct Input<'a> {
+    boxes: &'a [Aabb],
+    order: &'a [u32],
+    codes: &'a [u64],
+    delta: usize,
+    c: f64,
+    alpha: f64,
+    table: Vec<u32>,
+}
+
+impl<'a> Input<'a> {
+    fn new(boxes: &'a [Aabb], sorted: &SortedCodes<'a>, cfg: &AacConfig) -> Self {
+        let delta = cfg.delta.max(1) as f64;
+        let eps = cfg.epsilon as f64;
+        let (c, alpha) = (delta.powf(0.5 + eps) / 2.0, 0.5 - eps);
+        let n = sorted.order.len();
+        let table = (0..TABLE.min(n + 1))
+            .map(|x| round_target(c * (x as f64).powf(alpha)).min(u32::MAX as usize) as u32)
+            .collect();
+        Input {
+            boxes,
+            order: sorted.order,
+            codes: sorted.codes,
+            delta: cfg.delta.max(1) as usize,
+            c,
+            alpha,
+            table,
+        }
+    }
+
+    /// Number of clusters a constraint node with `x` primitives hands to its parent.
+    #[inline]
+    fn target(&self, x: usize) -> usize {
+        match self.table.get(x) {
+            Some(&t) => t as usize,
+            None => round_target(self.c * (x as f64).powf(self.alpha)),
+        }
+    }
+
+    /// Constraint-tree children of the code-sorted range `lo..hi`, or `None` for a leaf (thesis 3.2.1:
+    /// fewer than delta primitives; a single primitive is always a leaf, so delta <= 1 terminates).
+    ///
+    /// The split bit is the highest bit in which the range's codes differ: the bits above it are
+    /// common to the whole range and would only give one-sided splits, whose empty child changes
+    /// nothing (the node would merge the same set to the same `f(|P|)` again). When the codes are all
+    /// equal (the bits ran out) the range is split in the middle, as Gu et al.'s implementation does;
+    /// both halves are non-empty, so this terminates on any input.
+    #[inline]
+    fn split(&self, lo: usize, hi: usize) -> Option<usize> {
+        let m = hi - lo;
+        if m < self.delta || m <= 1 {
+            return None;
+        }
+        let diff = self.codes[lo] ^ self.codes[hi - 1];
+        if diff == 0 {
+            return Some(lo + m / 2);
+        }
+        let bit = 1u64 << (63 - diff.leading_zeros());
+        // Sorted codes that agree above `bit`: those with `bit` clear come first.
+        Some(lo + self.codes[lo..hi].partition_point(|&c| c & bit == 0))
+    }
+
+    #[inline]
+    fn prim_box(&self, i: usize) -> BoxA {
+        let b = &self.boxes[self.order[i] as usize];
+        BoxA {
+            min: Vec3A::from(b.min),
+            max: Vec3A::from(b.max),
+        }
+    }
+}
+
+/// Distance of two clusters: surface area of their union box (half of it; the factor does not change
+/// any comparison). NaN (only from non-finite boxes) counts as infinitely far.
+#[inline(always)]
+fn dist(a: &BoxA, b: &BoxA) -> f32 {
+    let d = a.union(b).half_area();
+    if d.is_nan() {
+        f32::INFINITY
+    } else {
+        d
+    }
+}
+
+/// Offset of row `i` in a packed lower-triangular matrix (pairs (i, j), j < i).
+#[inline(always)]
+fn row0(i: usize) -> usize {
+    i * i.saturating_sub(1) / 2
+}
+
+const NONE: u32 = u32::MAX;
+
+/// A live cluster set: clusters `s..` of the cluster arrays, its packed lower-triangular distance
+/// matrix (positions relative to `s`) at `dm[m..]`.
+#[derive(Clone, Copy, Debug)]
+struct Set {
+    s: usize,
+    m: usize,
+}
+
+/// The live cluster sets of one task, in post order (a stack), and their distance matrices, stacked
+/// the same way.
+///
+/// Each set's matrix is packed by relative position, so the matrix of a prefix of the set is a
+/// prefix of the matrix: after "new cluster to the lower index, last into the higher one" a reduced
+/// set's matrix is already compact, and a left sibling's matrix is the first rows of the united
+/// set's matrix (thesis 3.2.2); the right sibling's rows only move up to make room for the cross
+/// distances. Every set occupies a small contiguous block, which keeps the matrix in cache.
+///
+/// Invariant: within each set of at least two clusters, `nn[k]` is the position (relative to the
+/// set) of k's nearest neighbour (lowest position among equally near ones) and `nd[k]` its
+/// distance, so the result does not depend on how the set was assembled.
+struct Clusters {
+    /// Number of primitives: cluster ids below it are leaves (sorted position), the rest merges.
+    n: u32,
+    bx: Vec<BoxA>,
+    id: Vec<u32>,
+    nn: Vec<u32>,
+    nd: Vec<f32>,
+    /// Matrix storage; `dm_len` is the used part (growing it never clears memory: every entry of a
+    /// set's matrix is written before it is read).
+    dm: Vec<f32>,
+    dm_len: usize,
+    /// Merge `j` creates cluster `n + j` from its two children (lower position first).
+    merges: Vec<[u32; 2]>,
+    /// Scratch: the new cluster's distances during a merge.
+    tmp: Vec<f32>,
+}
+
+/// Offers `(j, d)` as nearest neighbour of `k`: keeps the minimum of (distance, position), which does
+/// not depend on the order of the offers.
+#[inline(always)]
+fn offer(nn: &mut [u32], nd: &mut [f32], k: usize, j: usize, d: f32) {
+    if d < nd[k] || (d == nd[k] && (j as u32) < nn[k]) {
+        nd[k] = d;
+        nn[k] = j as u32;
+    }
+}
+
+/// Nearest neighbour of `k` among `0..e` from a set's packed matrix: row k, then column k.
+#[inline]
+fn rescan(dm: &[f32], k: usize, e: usize) -> (u32, f32) {
+    let (mut bn, mut bd) = (NONE, f32::INFINITY);
+    let row = &dm[row0(k)..row0(k) + k];
+    for (j, &d) in row.iter().enumerate() {
+        if d < bd || bn == NONE {
+            (bn, bd) = (j as u32, d);
+        }
+    }
+    for j in k + 1..e {
+        let d = dm[row0(j) + k];
+        if d < bd || bn == NONE {
+            (bn, bd) = (j as u32, d);
+        }
+    }
+    (bn, bd)
+}
+
+impl Clusters {
+    fn new(n: u32) -> Self {
+        Clusters {
+            n,
+            bx: Vec::new(),
+            id: Vec::new(),
+            nn: Vec::new(),
+            nd: Vec::new(),
+            dm: Vec::new(),
+            dm_len: 0,
+            merges: Vec::new(),
+            tmp: Vec::new(),
+        }
+    }
+
+    #[inline]
+    fn len(&self) -> usize {
+        self.bx.len()
+    }
+
+    #[inline]
+    fn set_matrix_len(&mut self, len: usize) {
+        if self.dm.len() < len {
+            self.dm.resize(len.max(2 * self.dm.len()), 0.0);
+        }
+        self.dm_len = len;
+    }
+
+    /// A constraint-tree leaf: one cluster per primitive, all pairwise distances.
+    fn push_leaf(&mut self, inp: &Input, lo: usize, hi: usize) -> Set {
+        let set = Set {
+            s: self.len(),
+            m: self.dm_len,
+        };
+        for i in lo..hi {
+            self.bx.push(inp.prim_box(i));
+            self.id.push(i as u32);
+            self.nn.push(NONE);
+            self.nd.push(f32::INFINITY);
+        }
+        let k = hi - lo;
+        self.set_matrix_len(set.m + row0(k));
+        let (bx, nn, nd) = (
+            &self.bx[set.s..],
+            &mut self.nn[set.s..],
+            &mut self.nd[set.s..],
+        );
+        let dm = &mut self.dm[set.m..];
+        for i in 1..k {
+            let bi = bx[i];
+            for j in 0..i {
+                let d = dist(&bi, &bx[j]);
+                dm[row0(i) + j] = d;
+                offer(nn, nd, i, j, d);
+                offer(nn, nd, j, i, d);
+            }
+        }
+        set
+    }
+
+    /// Unites the sibling sets `l` and `r` (`r` the last one; thesis 3.2.2): only the cross
+    /// distances are computed; each side's matrix part and nearest neighbours are reused.
+    fn cross(&mut self, l: Set, r: Set) {
+        let (a, b) = (r.s - l.s, self.len() - r.s);
+        debug_assert_eq!(r.m, l.m + row0(a));
+        debug_assert_eq!(self.dm_len, r.m + row0(b));
+        self.set_matrix_len(l.m + row0(a + b));
+        let (bx, nn, nd) = (&self.bx[l.s..], &mut self.nn[l.s..], &mut self.nd[l.s..]);
+        let dm = &mut self.dm[l.m..];
+        for k in nn[a..].iter_mut() {
+            if *k != NONE {
+                *k += a as u32;
+            }
+        }
+        // Right rows from the last one down: row i moves from row0(a) + row0(i) to row0(a + i) + a
+        // (forward by a * (i + 1)), so no row overwrites one that has not moved yet.
+        for i in (0..b).rev() {
+            let (src, dst) = (row0(a) + row0(i), row0(a + i));
+            if i <= 8 {
+                // Tiny rows (most of them): a loop beats a memmove call.
+                for c in (0..i).rev() {
+                    dm[dst + a + c] = dm[src + c];
+                }
+            } else {
+                dm.copy_within(src..src + i, dst + a);
+            }
+            let bi = bx[a + i];
+            for j in 0..a {
+                let d = dist(&bi, &bx[j]);
+                dm[dst + j] = d;
+                offer(nn, nd, a + i, j, d);
+                offer(nn, nd, j, a + i, d);
+            }
+        }
+    }
+
+    /// Greedy clustering of `set` (the last set) until `target` clusters remain (Gu et al.'s
+    /// CombineClusters). A merged cluster is never nearer to a third cluster than either of its
+    /// parts, so only clusters whose neighbour was one of the merged pair need a rescan.
+    fn reduce(&mut self, set: Set, target: usize) {
+        let target = target.max(1);
+        let mut e = self.len() - set.s;
+        if e <= target {
+            return;
+        }
+        let base = self.n;
+        let Clusters {
+            bx,
+            id,
+            nn,
+            nd,
+            dm,
+            merges,
+            tmp,
+            ..
+        } = self;
+        let (bx, id, nn, nd) = (
+            &mut bx[set.s..],
+            &mut id[set.s..],
+            &mut nn[set.s..],
+            &mut nd[set.s..],
+        );
+        let dm = &mut dm[set.m..];
+        if tmp.len() < e {
+            tmp.resize(e, 0.0);
+        }
+        while e > target {
+            // The pair: the cluster with the smallest nearest distance (lowest position on ties).
+            let (mut a, mut best) = (0, nd[0]);
+            for (i, &d) in nd[..e].iter().enumerate().skip(1) {
+                if d < best {
+                    (a, best) = (i, d);
+                }
+            }
+            let b = nn[a] as usize;
+            let (p, q) = (a.min(b), a.max(b));
+            let last = e - 1;
+            id[p] = {
+                merges.push([id[p], id[q]]);
+                base + merges.len() as u32 - 1
+            };
+            bx[p] = bx[p].union(&bx[q]);
+            // The last cluster fills the hole at q (thesis 3.2.2), with its distances (row `last`,
+            // which stays intact until the next merge).
+            let rl = row0(last);
+            let moved = q != last;
+            if moved {
+                bx[q] = bx[last];
+                id[q] = id[last];
+                nn[q] = nn[last];
+                nd[q] = nd[last];
+                let rq = row0(q);
+                for k in 0..q {
+                    if k != p {
+                        dm[rq + k] = dm[rl + k];
+                    }
+                }
+                for k in q + 1..last {
+                    dm[row0(k) + q] = dm[rl + k];
+                }
+            }
+            e = last;
+            // The new cluster's distances (never into row `last`) and nearest neighbour.
+            let bp = bx[p];
+            let (mut bn, mut bd) = (NONE, f32::INFINITY);
+            for k in 0..e {
+                if k != p {
+                    let d = dist(&bp, &bx[k]);
+                    let at = if k < p { row0(p) + k } else { row0(k) + p };
+                    dm[at] = d;
+                    tmp[k] = d;
+                    if d < bd || bn == NONE {
+                        (bn, bd) = (k as u32, d);
+                    }
+                }
+            }
+            nn[p] = bn;
+            nd[p] = bd;
+            for k in 0..e {
+                if k == p {
+                    continue;
+                }
+                let t = nn[k] as usize;
+                if t == p || t == q {
+                    // Its neighbour was merged (q, if moved, now holds another cluster).
+                    (nn[k], nd[k]) = rescan(dm, k, e);
+                    continue;
+                }
+                if t == last {
+                    nn[k] = q as u32;
+                }
+                // Keep the lowest-position tie-break exact: the new cluster and the moved one may
+                // tie with the current neighbour (they cannot be strictly nearer).
+                offer(nn, nd, k, p, tmp[k]);
+                if moved && k != q {
+                    offer(nn, nd, k, q, dm[rl + k]);
+                }
+            }
+        }
+        let e = set.s + e;
+        self.bx.truncate(e);
+        self.id.truncate(e);
+        self.nn.truncate(e);
+        self.nd.truncate(e);
+        self.dm_len = set.m + row0(e - set.s);
+    }
+
+    /// Appends another task's single set after this one's sets, as if it had been built here:
+    /// inner-node ids are shifted; positions are set-relative and its matrix is already packed.
+    fn append(&mut self, r: Clusters) -> Set {
+        let set = Set {
+            s: self.len(),
+            m: self.dm_len,
+        };
+        let (base, n) = (self.merges.len() as u32, self.n);
+        let shift = |id: u32| if id >= n { id + base } else { id };
+        self.bx.extend_from_slice(&r.bx);
+        self.id.extend(r.id.iter().map(|&i| shift(i)));
+        self.nn.extend_from_slice(&r.nn);
+        self.nd.extend_from_slice(&r.nd);
+        self.merges
+            .extend(r.merges.iter().map(|&[a, b]| [shift(a), shift(b)]));
+        self.set_matrix_len(set.m + r.dm_len);
+        self.dm[set.m..set.m + r.dm_len].copy_from_slice(&r.dm[..r.dm_len]);
+        set
+    }
+}
+
+enum Task {
+    Visit(usize, usize),
+    /// Unite the two most recent sets, then reduce to `f(primitives)`.
+    Combine(usize),
+}
+
+/// Builds the constraint subtree `lo..hi`, leaving its reduced set at the end of `ctx`. Forks with
+/// `rayon::join` on large subtrees: the recursion depth is bounded by the constraint-tree depth above
+/// [`PAR_MIN`] primitives (at most the code bits plus the middle splits, log2 n).
+fn build_node(ctx: &mut Clusters, inp: &Input, lo: usize, hi: usize) -> Set {
+    let mid = match inp.split(lo, hi) {
+        Some(mid) if hi - lo >= PAR_MIN && rayon::current_num_threads() > 1 => mid,
+        _ => return build_seq(ctx, inp, lo, hi),
+    };
+    let n = ctx.n;
+    let (l, right) = rayon::join(
+        || build_node(ctx, inp, lo, mid),
+        || {
+            let mut r = Clusters::new(n);
+            build_node(&mut r, inp, mid, hi);
+            r
+        },
+    );
+    let r = ctx.append(right);
+    ctx.cross(l, r);
+    ctx.reduce(l, inp.target(hi - lo));
+    l
+}
+
+/// Sequential post-order walk of the constraint subtree `lo..hi` with an explicit stack.
+fn build_seq(ctx: &mut Clusters, inp: &Input, lo: usize, hi: usize) -> Set {
+    let mut tasks = vec![Task::Visit(lo, hi)];
+    let mut sets: Vec<Set> = Vec::with_capacity(64);
+    let leaf_target = inp.target(inp.delta);
+    while let Some(t) = tasks.pop() {
+        match t {
+            Task::Visit(lo, hi) => match inp.split(lo, hi) {
+                None => {
+                    let set = ctx.push_leaf(inp, lo, hi);
+                    // Thesis 3.2.1: in the constraint-tree leaves, delta is the input of f.
+                    ctx.reduce(set, leaf_target);
+                    sets.push(set);
+                }
+                Some(mid) => {
+                    tasks.push(Task::Combine(hi - lo));
+                    tasks.push(Task::Visit(mid, hi));
+                    tasks.push(Task::Visit(lo, mid));
+                }
+            },
+            Task::Combine(size) => {
+                let r = sets.pop().expect("right set");
+                let l = sets.pop().expect("left set");
+                ctx.cross(l, r);
+                ctx.reduce(l, inp.target(size));
+                sets.push(l);
+            }
+        }
+    }
+    debug_assert_eq!(sets.len(), 1);
+    sets[0]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reduction_halves_delta() {
+        assert_eq!(reduction(&AacConfig::HQ, 20), 10);
+        assert_eq!(reduction(&AacConfig::FAST, 4), 2);
+        assert_eq!(
+            reduction(
+                &AacConfig {
+                    delta: 1,
+                    epsilon: 0.0
+                },
+                1
+            ),
+            1
+        );
+        assert_eq!(
+            reduction(
+                &AacConfig {
+                    delta: 2,
+                    epsilon: 0.5
+                },
+                1000
+            ),
+            1
+        );
+        assert_eq!(
+            reduction(
+                &AacConfig {
+                    delta: 4,
+                    epsilon: f32::NAN
+                },
+                10
+            ),
+            1
+        );
+        // alpha = 0.4, c = 20^0.6 / 2: f(1e6) = 3.017 * 1e6^0.4 = 758.
+        assert_eq!(reduction(&AacConfig::HQ, 1_000_000), 758);
+    }
 }
