@@ -100,6 +100,7 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
         return (children, 0);
     }
     let s = area_scale(boxes);
+    let simd = avx2_available();
     // The two cluster buffers (boxes and node ids), swapped after every iteration.
     let mut cur = Boxes::with_len(n);
     {
@@ -122,7 +123,7 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
         let cl: [&[f32]; 6] = std::array::from_fn(|a| &cur.c[a][..c]);
         let ids = &cur_id[..c];
         // (a) Nearest neighbours.
-        nn[..c].par_chunks_mut(CHUNK).enumerate().for_each(|(k, out)| nearest(&cl, k * CHUNK, out, r));
+        nn[..c].par_chunks_mut(CHUNK).enumerate().for_each(|(k, out)| nearest(&cl, k * CHUNK, out, r, simd));
         let nn = &nn[..c];
         // (b) + (c): per chunk the clusters it keeps and the merges it performs, their exclusive
         // prefix sums (positions in the new buffer, inner-node ids), then the writes.
@@ -163,28 +164,33 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
             }
         }
         tasks.into_par_iter().for_each(|(k, dst, dst_id, ch, first_merge)| {
+            // Branch-free: whether a cluster merges is a coin flip to the branch predictor. Each
+            // cluster is written at w (united with its partner when it performs a merge; with
+            // itself otherwise) and w only advances when it stays valid, so an invalid one is
+            // overwritten by the next. The `w < len` guards are almost always true.
             let (mut w, mut m) = (0usize, 0usize);
+            let (len, mlen) = (dst_id.len(), ch.len());
             for i in k * CHUNK..(k * CHUNK + CHUNK).min(c) {
                 let j = nn[i] as usize;
-                if nn[j] as usize != i {
-                    for a in 0..6 {
-                        dst[a][w] = cl[a][i];
-                    }
-                    dst_id[w] = ids[i];
-                    w += 1;
-                } else if i < j {
+                let mutual = nn[j] as usize == i;
+                let keep = !mutual || i < j;
+                let merge = mutual && i < j;
+                let p = if merge { j } else { i };
+                if w < len {
                     // The lower index merges; the new cluster takes its place (thesis 3.6.1).
                     for a in 0..3 {
-                        dst[a][w] = mn(cl[a][i], cl[a][j]);
-                        dst[a + 3][w] = mx(cl[a + 3][i], cl[a + 3][j]);
+                        dst[a][w] = mn(cl[a][i], cl[a][p]);
+                        dst[a + 3][w] = mx(cl[a + 3][i], cl[a + 3][p]);
                     }
-                    dst_id[w] = (n + first_merge + m) as u32;
-                    ch[m] = [ids[i], ids[j]];
-                    w += 1;
-                    m += 1;
+                    dst_id[w] = if merge { (n + first_merge + m) as u32 } else { ids[i] };
                 }
+                if m < mlen {
+                    ch[m] = [ids[i], ids[p]];
+                }
+                w += keep as usize;
+                m += merge as usize;
             }
-            debug_assert_eq!((w, m), (dst_id.len(), ch.len()));
+            debug_assert_eq!((w, m), (len, mlen));
         });
         // Mutual pairs always exist (the pair minimizing (distance, lower index, higher index) over
         // all candidate pairs is one), so every iteration makes progress.
@@ -207,7 +213,7 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
 /// Then a left candidate wins ties against a right one: overall, equal distances go to the smaller
 /// index (Meister and Bittner 2018), whatever the chunking. Pairs with an end left of `base` are
 /// recomputed here (at most r(r+1)/2) so that chunks are independent.
-fn nearest(cl: &[&[f32]; 6], base: usize, out: &mut [u32], r: usize) {
+fn nearest(cl: &[&[f32]; 6], base: usize, out: &mut [u32], r: usize, simd: bool) {
     let c = cl[0].len();
     let lo = base.saturating_sub(r);
     let hi = base + out.len(); // exclusive
@@ -221,7 +227,7 @@ fn nearest(cl: &[&[f32]; 6], base: usize, out: &mut [u32], r: usize) {
         let m = hi.min(c - k) - lo; // pairs (i, i + k) for i in lo..lo + m
         let a: [&[f32]; 6] = std::array::from_fn(|x| &cl[x][lo..lo + m]);
         let b: [&[f32]; 6] = std::array::from_fn(|x| &cl[x][lo + k..lo + k + m]);
-        pass(a, b, &mut rd[..m], &mut rj[..m], &mut ld[k..k + m], &mut lj[k..k + m], lo as u32, k as u32);
+        pass(a, b, &mut rd[..m], &mut rj[..m], &mut ld[k..k + m], &mut lj[k..k + m], lo as u32, k as u32, simd);
     }
     for (x, o) in out.iter_mut().enumerate() {
         let i = base + x - lo;
@@ -229,16 +235,26 @@ fn nearest(cl: &[&[f32]; 6], base: usize, out: &mut [u32], r: usize) {
     }
 }
 
-/// One offset of [`nearest`]: distances of the pairs (a[t], b[t]) = (i0 + t, i0 + t + k), written
-/// without branches so that it vectorizes.
+/// One offset of [`nearest`]: distances of the pairs (a[t], b[t]) = (i0 + t, i0 + t + k). The
+/// AVX2 kernel takes 8 pairs per step; the scalar loop does the rest (or everything without AVX2).
+/// Both use the same IEEE operations in the same order (no FMA), so they give identical bits.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn pass(a: [&[f32]; 6], b: [&[f32]; 6], rd: &mut [f32], rj: &mut [u32], ld: &mut [f32], lj: &mut [u32], i0: u32, k: u32) {
+fn pass(a: [&[f32]; 6], b: [&[f32]; 6], rd: &mut [f32], rj: &mut [u32], ld: &mut [f32], lj: &mut [u32], i0: u32, k: u32, simd: bool) {
     let m = rd.len();
     let a: [&[f32]; 6] = a.map(|s| &s[..m]);
     let b: [&[f32]; 6] = b.map(|s| &s[..m]);
     let (rj, ld, lj) = (&mut rj[..m], &mut ld[..m], &mut lj[..m]);
-    for t in 0..m {
+    let mut start = 0;
+    #[cfg(target_arch = "x86_64")]
+    if simd {
+        // SAFETY: `simd` is only true when the CPU has AVX2 (`avx2_available`); every slice has
+        // length m and the kernel reads and writes indices < m only.
+        start = unsafe { pass_avx2(&a, &b, rd, rj, ld, lj, i0, k) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = simd;
+    for t in start..m {
         let ex = mx(a[3][t], b[3][t]) - mn(a[0][t], b[0][t]);
         let ey = mx(a[4][t], b[4][t]) - mn(a[1][t], b[1][t]);
         let ez = mx(a[5][t], b[5][t]) - mn(a[2][t], b[2][t]);
@@ -247,11 +263,119 @@ fn pass(a: [&[f32]; 6], b: [&[f32]; 6], rd: &mut [f32], rj: &mut [u32], ld: &mut
         // mutual pairs still exist, and every candidate beats the initial infinity.
         let d = mn(ex * ey + ey * ez + ez * ex, f32::MAX);
         let i = i0 + t as u32;
-        let closer = d < rd[t];
-        rd[t] = if closer { d } else { rd[t] };
-        rj[t] = if closer { i + k } else { rj[t] };
-        let closer = d <= ld[t];
-        ld[t] = if closer { d } else { ld[t] };
-        lj[t] = if closer { i } else { lj[t] };
+        if d < rd[t] {
+            rd[t] = d;
+            rj[t] = i + k;
+        }
+        if d <= ld[t] {
+            ld[t] = d;
+            lj[t] = i;
+        }
+    }
+}
+
+/// Whether [`pass_avx2`] may run (checked once per build; the result does not depend on it).
+fn avx2_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// The scalar loop of [`pass`] on 8 pairs at a time; returns how many pairs it did (m rounded
+/// down to a multiple of 8). `_mm256_min_ps(x, y)` is `x < y ? x : y` like [`mn`], and the
+/// comparisons are ordered, so NaN and ties behave exactly as in the scalar loop. Indices travel as
+/// f32 bit patterns through `blendv`, which only moves bits.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn pass_avx2(a: &[&[f32]; 6], b: &[&[f32]; 6], rd: &mut [f32], rj: &mut [u32], ld: &mut [f32], lj: &mut [u32], i0: u32, k: u32) -> usize {
+    use std::arch::x86_64::*;
+    let m = rd.len();
+    debug_assert!(a.iter().chain(b).all(|s| s.len() == m) && rj.len() == m && ld.len() == m && lj.len() == m);
+    let big = _mm256_set1_ps(f32::MAX);
+    let i0 = i0 as i32;
+    let mut iv = _mm256_setr_epi32(i0, i0 + 1, i0 + 2, i0 + 3, i0 + 4, i0 + 5, i0 + 6, i0 + 7);
+    let kv = _mm256_set1_epi32(k as i32);
+    let eight = _mm256_set1_epi32(8);
+    let (pa, pb) = (a.map(|s| s.as_ptr()), b.map(|s| s.as_ptr()));
+    let (prd, pld) = (rd.as_mut_ptr(), ld.as_mut_ptr());
+    let (prj, plj) = (rj.as_mut_ptr() as *mut f32, lj.as_mut_ptr() as *mut f32);
+    let mut t = 0;
+    while t + 8 <= m {
+        let l = |p: *const f32| _mm256_loadu_ps(p.add(t));
+        let ex = _mm256_sub_ps(_mm256_max_ps(l(pa[3]), l(pb[3])), _mm256_min_ps(l(pa[0]), l(pb[0])));
+        let ey = _mm256_sub_ps(_mm256_max_ps(l(pa[4]), l(pb[4])), _mm256_min_ps(l(pa[1]), l(pb[1])));
+        let ez = _mm256_sub_ps(_mm256_max_ps(l(pa[5]), l(pb[5])), _mm256_min_ps(l(pa[2]), l(pb[2])));
+        let sum = _mm256_add_ps(_mm256_mul_ps(ex, ey), _mm256_mul_ps(ey, ez));
+        let d = _mm256_min_ps(_mm256_add_ps(sum, _mm256_mul_ps(ez, ex)), big);
+        // Best right neighbour of i: strictly closer.
+        let r0 = _mm256_loadu_ps(prd.add(t));
+        let c = _mm256_cmp_ps::<_CMP_LT_OQ>(d, r0);
+        _mm256_storeu_ps(prd.add(t), _mm256_blendv_ps(r0, d, c));
+        let j = _mm256_castsi256_ps(_mm256_add_epi32(iv, kv));
+        _mm256_storeu_ps(prj.add(t), _mm256_blendv_ps(_mm256_loadu_ps(prj.add(t)), j, c));
+        // Best left neighbour of i + k: closer or equal.
+        let l0 = _mm256_loadu_ps(pld.add(t));
+        let c = _mm256_cmp_ps::<_CMP_LE_OQ>(d, l0);
+        _mm256_storeu_ps(pld.add(t), _mm256_blendv_ps(l0, d, c));
+        let i = _mm256_castsi256_ps(iv);
+        _mm256_storeu_ps(plj.add(t), _mm256_blendv_ps(_mm256_loadu_ps(plj.add(t)), i, c));
+        iv = _mm256_add_epi32(iv, eight);
+        t += 8;
+    }
+    t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The AVX2 kernel and the scalar loop find the same neighbours, ties and NaN included.
+    #[test]
+    fn simd_and_scalar_agree() {
+        if !avx2_available() {
+            return;
+        }
+        let mut r = bvhlab_geom::rng::SplitMix64(3);
+        let n = 3000;
+        let mut c: [Vec<f32>; 6] = Default::default();
+        for i in 0..n {
+            // Coarse values: many exact distance ties. Some NaN and infinite coordinates.
+            let p: [f32; 3] = std::array::from_fn(|_| (r.next_u64() % 8) as f32);
+            let e: [f32; 3] = std::array::from_fn(|_| (r.next_u64() % 3) as f32);
+            for a in 0..3 {
+                c[a].push(p[a]);
+                c[a + 3].push(p[a] + e[a]);
+            }
+            if i % 97 == 5 {
+                c[1][i] = f32::NAN;
+            }
+            if i % 89 == 7 {
+                c[5][i] = f32::INFINITY;
+            }
+        }
+        let cl: [&[f32]; 6] = std::array::from_fn(|a| &c[a][..]);
+        for radius in [1, 7, 16, 40] {
+            for chunk in [64, 1000, n] {
+                let run = |simd| {
+                    let mut nn = vec![0u32; n];
+                    for (k, out) in nn.chunks_mut(chunk).enumerate() {
+                        nearest(&cl, k * chunk, out, radius, simd);
+                    }
+                    nn
+                };
+                let scalar = run(false);
+                assert_eq!(scalar, run(true), "r={radius} chunk={chunk}");
+                // Chunking does not change the result either.
+                let mut whole = vec![0u32; n];
+                nearest(&cl, 0, &mut whole, radius, false);
+                assert_eq!(scalar, whole, "r={radius} chunk={chunk}");
+            }
+        }
     }
 }
