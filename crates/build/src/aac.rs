@@ -179,7 +179,9 @@ impl<'a> Input<'a> {
 /// any comparison). NaN (only from non-finite boxes) counts as infinitely far.
 #[inline(always)]
 fn dist(a: &BoxA, b: &BoxA) -> f32 {
-    let d = a.union(b).half_area();
+    // The union of two non-empty boxes has no negative extent: no clamp needed (BoxA::half_area).
+    let e = a.max.max(b.max) - a.min.min(b.min);
+    let d = e.x * e.y + e.y * e.z + e.z * e.x;
     if d.is_nan() {
         f32::INFINITY
     } else {
@@ -252,8 +254,10 @@ fn rescan(dm: &[f32], k: usize, e: usize) -> (u32, f32) {
             (bn, bd) = (j as u32, d);
         }
     }
+    let mut at = row0(k + 1) + k;
     for j in k + 1..e {
-        let d = dm[row0(j) + k];
+        let d = dm[at];
+        at += j;
         if d < bd || bn == NONE {
             (bn, bd) = (j as u32, d);
         }
@@ -329,12 +333,10 @@ impl Clusters {
         debug_assert_eq!(self.dm_len, r.m + row0(b));
         self.set_matrix_len(l.m + row0(a + b));
         let (bx, nn, nd) = (&self.bx[l.s..], &mut self.nn[l.s..], &mut self.nd[l.s..]);
+        let (lbx, rbx) = bx.split_at(a);
+        let (lnn, rnn) = nn.split_at_mut(a);
+        let (lnd, rnd) = nd.split_at_mut(a);
         let dm = &mut self.dm[l.m..];
-        for k in nn[a..].iter_mut() {
-            if *k != NONE {
-                *k += a as u32;
-            }
-        }
         // Right rows from the last one down: row i moves from row0(a) + row0(i) to row0(a + i) + a
         // (forward by a * (i + 1)), so no row overwrites one that has not moved yet.
         for i in (0..b).rev() {
@@ -347,13 +349,34 @@ impl Clusters {
             } else {
                 dm.copy_within(src..src + i, dst + a);
             }
-            let bi = bx[a + i];
-            for j in 0..a {
-                let d = dist(&bi, &bx[j]);
-                dm[dst + j] = d;
-                offer(nn, nd, a + i, j, d);
-                offer(nn, nd, j, a + i, d);
+            // Nearest neighbours keep the minimum of (distance, position), whatever the visit order.
+            let bi = rbx[i];
+            let ii = (a + i) as u32;
+            let (mut bn, mut bd) = match rnn[i] {
+                NONE => (NONE, f32::INFINITY),
+                k => (k + a as u32, rnd[i]),
+            };
+            let row = &mut dm[dst..dst + a];
+            for (j, (((bj, slot), jn), jd)) in lbx
+                .iter()
+                .zip(row)
+                .zip(lnn.iter_mut())
+                .zip(lnd.iter_mut())
+                .enumerate()
+            {
+                let d = dist(&bi, bj);
+                *slot = d;
+                // Left positions are below every right one: on a tie the first j wins.
+                if d < bd || (d == bd && bn >= a as u32) {
+                    (bn, bd) = (j as u32, d);
+                }
+                // Right positions come in decreasing order here: compare them too.
+                if d < *jd || (d == *jd && ii < *jn) {
+                    (*jn, *jd) = (ii, d);
+                }
             }
+            rnn[i] = bn;
+            rnd[i] = bd;
         }
     }
 
@@ -412,29 +435,40 @@ impl Clusters {
                 id[q] = id[last];
                 nn[q] = nn[last];
                 nd[q] = nd[last];
-                let rq = row0(q);
-                for k in 0..q {
-                    if k != p {
-                        dm[rq + k] = dm[rl + k];
-                    }
-                }
+                // Row q (its entry for p is rewritten below), then column q.
+                let (head, tail) = dm.split_at_mut(rl);
+                head[row0(q)..row0(q) + q].copy_from_slice(&tail[..q]);
+                let mut at = row0(q + 1) + q;
                 for k in q + 1..last {
-                    dm[row0(k) + q] = dm[rl + k];
+                    head[at] = tail[k];
+                    at += k;
                 }
             }
             e = last;
-            // The new cluster's distances (never into row `last`) and nearest neighbour.
+            // The new cluster's distances (never into row `last`) and nearest neighbour: row p, then
+            // column p.
             let bp = bx[p];
             let (mut bn, mut bd) = (NONE, f32::INFINITY);
-            for k in 0..e {
-                if k != p {
-                    let d = dist(&bp, &bx[k]);
-                    let at = if k < p { row0(p) + k } else { row0(k) + p };
-                    dm[at] = d;
-                    tmp[k] = d;
-                    if d < bd || bn == NONE {
-                        (bn, bd) = (k as u32, d);
-                    }
+            let rp = row0(p);
+            for (k, ((bk, slot), t)) in bx[..p]
+                .iter()
+                .zip(&mut dm[rp..rp + p])
+                .zip(tmp.iter_mut())
+                .enumerate()
+            {
+                let d = dist(&bp, bk);
+                (*slot, *t) = (d, d);
+                if d < bd || bn == NONE {
+                    (bn, bd) = (k as u32, d);
+                }
+            }
+            let mut at = row0(p + 1) + p;
+            for k in p + 1..e {
+                let d = dist(&bp, &bx[k]);
+                (dm[at], tmp[k]) = (d, d);
+                at += k;
+                if d < bd || bn == NONE {
+                    (bn, bd) = (k as u32, d);
                 }
             }
             nn[p] = bn;
