@@ -112,13 +112,13 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
         });
     }
     let mut cur_id: Vec<u32> = (0..n as u32).collect();
+    // merges done so far = next free inner-node slot; c = current cluster count.
+    let (mut merged, mut c) = premerge_runs(&mut cur, &mut cur_id, &mut children);
     let mut next = cur.clone();
     let mut next_id = cur_id.clone();
     let mut nn = vec![0u32; n];
     // Per-chunk (kept clusters, merges).
     let mut counts: Vec<(usize, usize)> = Vec::with_capacity(n.div_ceil(CHUNK));
-    let mut merged = 0usize; // merges done so far = next free inner-node slot
-    let mut c = n;
     while c > 1 {
         let cl: [&[f32]; 6] = std::array::from_fn(|a| &cur.c[a][..c]);
         let ids = &cur_id[..c];
@@ -202,6 +202,91 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
     }
     debug_assert_eq!(merged, n - 1);
     (children, cur_id[0])
+}
+
+/// Shortest run of identical boxes that [`premerge_runs`] merges up front.
+pub(crate) const RUN: usize = 64;
+
+/// Safeguard (not in the paper): every run of at least [`RUN`] consecutive clusters with
+/// bit-identical boxes becomes one cluster, a balanced tree over the run, before the first
+/// iteration. Among identical boxes every distance ties, and the paper's tie rule (smaller index)
+/// makes all of them point to the leftmost one in reach, so the literal algorithm merges one pair
+/// of the run per iteration: quadratic time (20k duplicates of one triangle took 5 s, 871k would
+/// take hours). Any binary tree over identical boxes has the same SAH cost, and the compaction
+/// makes it one leaf anyway. Merges are numbered run by run, pairs left to right, round by round.
+/// Returns (merges made, clusters left); buffers are compacted in place.
+fn premerge_runs(cl: &mut Boxes, ids: &mut [u32], children: &mut [[u32; 2]]) -> (usize, usize) {
+    let n = ids.len();
+    let same = |c: &Boxes, i: usize, j: usize| (0..6).all(|a| c.c[a][i].to_bits() == c.c[a][j].to_bits());
+    // Runs (start, length) that start in each chunk; a chunk may read past its end to finish one.
+    let runs: Vec<(usize, usize)> = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .flat_map_iter(|k| {
+            let mut out = Vec::new();
+            let mut i = k * CHUNK;
+            let end = (i + CHUNK).min(n);
+            // A run that started in an earlier chunk belongs to that chunk.
+            while i < end && i > 0 && same(cl, i, i - 1) {
+                i += 1;
+            }
+            while i < end {
+                let mut j = i + 1;
+                while j < n && same(cl, i, j) {
+                    j += 1;
+                }
+                if j - i >= RUN {
+                    out.push((i, j - i));
+                }
+                i = j;
+            }
+            out
+        })
+        .collect();
+    if runs.is_empty() {
+        return (0, n);
+    }
+    let mut merged = 0;
+    let mut level: Vec<u32> = Vec::new();
+    let mut next: Vec<u32> = Vec::new();
+    for &(start, len) in &runs {
+        level.clear();
+        level.extend_from_slice(&ids[start..start + len]);
+        while level.len() > 1 {
+            next.clear();
+            for pair in level.chunks(2) {
+                if let [a, b] = *pair {
+                    children[merged] = [a, b];
+                    next.push((n + merged) as u32);
+                    merged += 1;
+                } else {
+                    next.push(pair[0]);
+                }
+            }
+            std::mem::swap(&mut level, &mut next);
+        }
+        ids[start] = level[0];
+    }
+    // Compaction: each run keeps its first slot (same box, the run's root id).
+    let (mut w, mut i) = (0, 0);
+    let copy = |cl: &mut Boxes, ids: &mut [u32], i: usize, w: &mut usize| {
+        for a in 0..6 {
+            cl.c[a][*w] = cl.c[a][i];
+        }
+        ids[*w] = ids[i];
+        *w += 1;
+    };
+    for &(start, len) in &runs {
+        while i <= start {
+            copy(cl, ids, i, &mut w);
+            i += 1;
+        }
+        i = start + len;
+    }
+    while i < n {
+        copy(cl, ids, i, &mut w);
+        i += 1;
+    }
+    (merged, w)
 }
 
 /// Nearest neighbours of clusters `base .. base + out.len()` among the `r` clusters on each side.

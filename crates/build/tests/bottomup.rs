@@ -189,11 +189,39 @@ fn lbvh_is_the_radix_tree_of_the_augmented_keys() {
 
 /// PLOC exactly as thesis 3.6.1 reads, sequential and without any of the builder's tricks: nearest
 /// neighbour by (distance, index) over the r clusters on each side, mutual pairs merged by the lower
-/// index in place, compaction, inner-node ids in merge order.
+/// index in place, compaction, inner-node ids in merge order. Plus the builder's one addition:
+/// runs of at least 64 consecutive identical boxes are first merged into balanced trees.
 fn ploc_reference(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
     let n = order.len();
-    let mut cl: Vec<(Aabb, u32)> = order.iter().enumerate().map(|(i, &p)| (boxes[p as usize], i as u32)).collect();
     let mut children = Vec::new();
+    let mut cl: Vec<(Aabb, u32)> = Vec::new();
+    let mut i = 0;
+    while i < n {
+        let b = boxes[order[i] as usize];
+        let mut j = i + 1;
+        while j < n && boxes[order[j] as usize] == b {
+            j += 1;
+        }
+        if j - i < 64 {
+            cl.extend((i..j).map(|k| (boxes[order[k] as usize], k as u32)));
+        } else {
+            let mut level: Vec<u32> = (i as u32..j as u32).collect();
+            while level.len() > 1 {
+                level = level
+                    .chunks(2)
+                    .map(|p| {
+                        if p.len() == 1 {
+                            return p[0];
+                        }
+                        children.push([p[0], p[1]]);
+                        (n + children.len() - 1) as u32
+                    })
+                    .collect();
+            }
+            cl.push((b, level[0]));
+        }
+        i = j;
+    }
     let dist = |a: &Aabb, b: &Aabb| {
         let e = a.union(b).extent();
         (e.x * e.y + e.y * e.z + e.z * e.x).min(f32::MAX)
@@ -226,9 +254,19 @@ fn ploc_reference(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u3
 fn ploc_matches_the_sequential_reading_of_the_paper() {
     // Enough clusters for several parallel chunks (2048 each), with exact distance ties
     // (duplicates, points, shared centres) so the tie rule is exercised.
-    for spec in ["gen:degenerate:n=6000", "gen:terrain:n=5000"] {
-        let scene = bvhlab_geom::load_scene(spec).unwrap();
-        let (boxes, centers) = scene.boxes_and_centers();
+    let mut runs = random_boxes(3000, 0.02, 21);
+    // Runs of identical boxes around the pre-merge threshold (63, 64, 65, 300), some touching.
+    for (at, len) in [(100usize, 63usize), (700, 64), (764, 65), (1500, 300)] {
+        let b = runs[at];
+        runs[at..at + len].fill(b);
+    }
+    let inputs: Vec<(&str, Vec<Aabb>)> = ["gen:degenerate:n=6000", "gen:terrain:n=5000"]
+        .into_iter()
+        .map(|spec| (spec, bvhlab_geom::load_scene(spec).unwrap().boxes_and_centers().0))
+        .chain([("runs", runs), ("points", point_boxes(500))])
+        .collect();
+    for (spec, boxes) in inputs {
+        let centers = centers_of(&boxes);
         let codes = morton(&centers, 10);
         for radius in [1, 3, 10, 40] {
             let (children, root) = ploc_reference(&boxes, &codes.order, radius as usize);
