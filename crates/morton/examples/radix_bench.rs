@@ -16,10 +16,12 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     let n: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(10_000_000);
     let runs: usize = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(5);
+    // `radix1`: only the radix sort at 1 thread (for CPU-time comparisons with `time`).
+    let only_radix = args.get(3).is_some_and(|a| a == "radix1");
     let mut rng = SplitMix64::new(7);
     let codes: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
     let mut reference: Option<Vec<u32>> = None;
-    for threads in [1usize, 2] {
+    for threads in if only_radix { vec![1usize] } else { vec![1, 2] } {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
             let mut t_radix = Vec::new();
@@ -36,6 +38,9 @@ fn main() {
                     Some(r) => assert!(r == &order, "radix output differs between runs/thread counts"),
                 }
 
+                if only_radix {
+                    continue;
+                }
                 let mut pairs: Vec<(u64, u32)> = codes.iter().enumerate().map(|(i, &c)| (c, i as u32)).collect();
                 let t = Instant::now();
                 pairs.sort_unstable();
@@ -48,6 +53,9 @@ fn main() {
             }
             let ms = |v: Vec<f64>| median(v) * 1e3;
             println!("radix::sort_with_index   n={n} threads={threads} median_ms={:.1}", ms(t_radix));
+            if only_radix {
+                return;
+            }
             println!(
                 "slice::sort_unstable     n={n} threads={threads} median_ms={:.1} (single-threaded anchor)",
                 ms(t_std)

@@ -32,6 +32,8 @@ const SMALL: usize = 1 << 15;
 const CACHE_BUCKET: usize = 1 << 12;
 /// Widest first-pass digit.
 const MSD_BITS: u32 = 11;
+/// Buckets with at least this many keys use 11-bit in-cache digits (fewer passes), smaller ones 8.
+const SEQ_WIDE: usize = 1 << 11;
 /// Buckets larger than this are sorted with the parallel LSD passes.
 const BIG_BUCKET: usize = 1 << 18;
 
@@ -156,26 +158,36 @@ fn chunk_len(n: usize) -> usize {
 /// the same length. The result ends in `k`, `v`. All digit histograms come from one read (a
 /// permutation does not change them).
 fn lsd_seq(k: &mut [u64], v: &mut [u32], sk: &mut [u64], sv: &mut [u32]) {
+    if k.len() >= SEQ_WIDE {
+        lsd_seq_w::<11, 2048>(k, v, sk, sv)
+    } else {
+        lsd_seq_w::<8, 256>(k, v, sk, sv)
+    }
+}
+
+/// `lsd_seq` with `W`-bit digits (`R = 2^W` buckets).
+fn lsd_seq_w<const W: u32, const R: usize>(k: &mut [u64], v: &mut [u32], sk: &mut [u64], sv: &mut [u32]) {
     let k0 = k[0];
     let mask = k.iter().fold(0, |m, &x| m | (x ^ k0));
-    let mut plan = [(0u32, 0u32); 8];
+    let dmask = (R - 1) as u64;
+    let mut plan = [0u32; 8];
     let mut passes = 0;
     let mut m = mask;
     while m != 0 {
         let lo = m.trailing_zeros();
-        plan[passes] = (lo, 8);
+        plan[passes] = lo;
         passes += 1;
-        m &= !(0xffu64.checked_shl(lo).unwrap_or(0));
+        m &= !(dmask.checked_shl(lo).unwrap_or(0));
     }
     let plan = &plan[..passes];
-    let mut hist = [[0usize; 256]; 8];
+    let mut hist = [[0u32; R]; 8];
     for &x in k.iter() {
-        for (h, &(shift, _)) in hist.iter_mut().zip(plan) {
-            h[((x >> shift) & 0xff) as usize] += 1;
+        for (h, &shift) in hist.iter_mut().zip(plan) {
+            h[((x >> shift) & dmask) as usize] += 1;
         }
     }
     let mut in_scratch = false;
-    for (h, &(shift, _)) in hist.iter_mut().zip(plan) {
+    for (h, &shift) in hist.iter_mut().zip(plan) {
         let mut sum = 0;
         for o in h.iter_mut() {
             let c = *o;
@@ -196,12 +208,20 @@ fn lsd_seq(k: &mut [u64], v: &mut [u32], sk: &mut [u64], sv: &mut [u32]) {
 }
 
 #[inline]
-fn scatter_seq(src_k: &[u64], src_v: &[u32], dst_k: &mut [u64], dst_v: &mut [u32], shift: u32, off: &mut [usize; 256]) {
+fn scatter_seq<const R: usize>(
+    src_k: &[u64],
+    src_v: &[u32],
+    dst_k: &mut [u64],
+    dst_v: &mut [u32],
+    shift: u32,
+    off: &mut [u32; R],
+) {
+    let dmask = (R - 1) as u64;
     let (dst_k, dst_v) = (&mut dst_k[..src_k.len()], &mut dst_v[..src_k.len()]);
     for (&x, &val) in src_k.iter().zip(src_v) {
-        let d = ((x >> shift) & 0xff) as usize;
-        let o = off[d];
-        off[d] = o + 1;
+        let d = ((x >> shift) & dmask) as usize;
+        let o = off[d] as usize;
+        off[d] += 1;
         dst_k[o] = x;
         dst_v[o] = val;
     }
