@@ -15,7 +15,11 @@ const GRAIN: usize = 4096;
 /// One primitive per leaf; the caller applies the SAH compaction.
 pub fn build(boxes: &[Aabb], sorted: &SortedCodes) -> Bvh {
     let n = sorted.order.len();
-    assert_eq!(sorted.codes.len(), n, "lbvh: codes and order differ in length");
+    assert_eq!(
+        sorted.codes.len(),
+        n,
+        "lbvh: codes and order differ in length"
+    );
     if n == 0 {
         return Bvh::default();
     }
@@ -23,7 +27,14 @@ pub fn build(boxes: &[Aabb], sorted: &SortedCodes) -> Bvh {
     // Leaf i is the i-th key (primitive order[i]); internal node i has id n + i; the root is
     // internal node 0 (Karras 2012 section 3), or leaf 0 when there is only one primitive.
     let root = if n == 1 { 0 } else { n as u32 };
-    to_bvh(boxes, &ClusterTree { leaf_prims: sorted.order, children: &children, root })
+    to_bvh(
+        boxes,
+        &ClusterTree {
+            leaf_prims: sorted.order,
+            children: &children,
+            root,
+        },
+    )
 }
 
 /// Children of the `n - 1` internal nodes of the binary radix tree over `codes` (non-decreasing),
@@ -33,7 +44,11 @@ pub(crate) fn radix_tree(codes: &[u64]) -> Vec<[u32; 2]> {
     if n < 2 {
         return Vec::new();
     }
-    (0..n - 1).into_par_iter().with_min_len(GRAIN).map(|i| internal_node(codes, i)).collect()
+    (0..n - 1)
+        .into_par_iter()
+        .with_min_len(GRAIN)
+        .map(|i| internal_node(codes, i))
+        .collect()
 }
 
 /// Length of the longest common prefix of keys `i` and `j`, or -1 when `j` is outside the array.
@@ -58,7 +73,11 @@ fn internal_node(codes: &[u64], i: usize) -> [u32; 2] {
     let n = codes.len();
     let ii = i as i64;
     // Direction of the range: towards the neighbour sharing the longer prefix.
-    let d: i64 = if delta(codes, i, ii + 1) > delta(codes, i, ii - 1) { 1 } else { -1 };
+    let d: i64 = if delta(codes, i, ii + 1) > delta(codes, i, ii - 1) {
+        1
+    } else {
+        -1
+    };
     // Upper bound for the range length by exponential search: every key in the range shares more
     // than `delta_min` bits with key i.
     let delta_min = delta(codes, i, ii - d);
@@ -92,7 +111,11 @@ fn internal_node(codes: &[u64], i: usize) -> [u32; 2] {
     let gamma = ii + s * d + d.min(0);
     let (lo, hi) = (ii.min(j), ii.max(j));
     let left = if lo == gamma { gamma } else { n as i64 + gamma };
-    let right = if hi == gamma + 1 { gamma + 1 } else { n as i64 + gamma + 1 };
+    let right = if hi == gamma + 1 {
+        gamma + 1
+    } else {
+        n as i64 + gamma + 1
+    };
     [left as u32, right as u32]
 }
 
@@ -115,7 +138,10 @@ mod tests {
         let mut leaves = Vec::new();
         while let Some(id) = stack.pop() {
             seen[id as usize] += 1;
-            assert!(seen[id as usize] == 1, "node {id} reached twice in {codes:?}");
+            assert!(
+                seen[id as usize] == 1,
+                "node {id} reached twice in {codes:?}"
+            );
             if (id as usize) < n {
                 leaves.push(id);
             } else {

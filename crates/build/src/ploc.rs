@@ -33,12 +33,23 @@ const CHUNK: usize = 2048;
 /// One primitive per leaf; the caller applies the SAH compaction.
 pub fn build(boxes: &[Aabb], sorted: &SortedCodes, cfg: &PlocConfig) -> Bvh {
     let n = sorted.order.len();
-    assert_eq!(sorted.codes.len(), n, "ploc: codes and order differ in length");
+    assert_eq!(
+        sorted.codes.len(),
+        n,
+        "ploc: codes and order differ in length"
+    );
     if n == 0 {
         return Bvh::default();
     }
     let (children, root) = cluster(boxes, sorted.order, cfg.radius.max(1) as usize);
-    to_bvh(boxes, &ClusterTree { leaf_prims: sorted.order, children: &children, root })
+    to_bvh(
+        boxes,
+        &ClusterTree {
+            leaf_prims: sorted.order,
+            children: &children,
+            root,
+        },
+    )
 }
 
 /// `a < b ? a : b`: one `minps` (Rust's `f32::min` adds NaN handling the hot loop does not need).
@@ -68,7 +79,9 @@ struct Boxes {
 
 impl Boxes {
     fn with_len(n: usize) -> Boxes {
-        Boxes { c: std::array::from_fn(|_| vec![0.0; n]) }
+        Boxes {
+            c: std::array::from_fn(|_| vec![0.0; n]),
+        }
     }
 }
 
@@ -86,7 +99,7 @@ fn area_scale(boxes: &[Aabb]) -> f32 {
         return 1.0;
     }
     let e = m.log2().ceil() as i32; // m <= 2^e, e <= 128
-    // 2^-126 is the smallest normal power of two; it leaves |x| <= 4, still far from overflow.
+                                    // 2^-126 is the smallest normal power of two; it leaves |x| <= 4, still far from overflow.
     2f32.powi(-(e.min(126)))
 }
 
@@ -105,11 +118,14 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
     let mut cur = Boxes::with_len(n);
     {
         let [a, b, c, d, e, f] = &mut cur.c;
-        (a, b, c, d, e, f, order).into_par_iter().with_min_len(CHUNK).for_each(|(a, b, c, d, e, f, &p)| {
-            let bx = &boxes[p as usize];
-            (*a, *b, *c) = (bx.min.x * s, bx.min.y * s, bx.min.z * s);
-            (*d, *e, *f) = (bx.max.x * s, bx.max.y * s, bx.max.z * s);
-        });
+        (a, b, c, d, e, f, order)
+            .into_par_iter()
+            .with_min_len(CHUNK)
+            .for_each(|(a, b, c, d, e, f, &p)| {
+                let bx = &boxes[p as usize];
+                (*a, *b, *c) = (bx.min.x * s, bx.min.y * s, bx.min.z * s);
+                (*d, *e, *f) = (bx.max.x * s, bx.max.y * s, bx.max.z * s);
+            });
     }
     let mut cur_id: Vec<u32> = (0..n as u32).collect();
     // merges done so far = next free inner-node slot; c = current cluster count.
@@ -123,7 +139,10 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
         let cl: [&[f32]; 6] = std::array::from_fn(|a| &cur.c[a][..c]);
         let ids = &cur_id[..c];
         // (a) Nearest neighbours.
-        nn[..c].par_chunks_mut(CHUNK).enumerate().for_each(|(k, out)| nearest(&cl, k * CHUNK, out, r, simd));
+        nn[..c]
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(k, out)| nearest(&cl, k * CHUNK, out, r, simd));
         let nn = &nn[..c];
         // (b) + (c): per chunk the clusters it keeps and the merges it performs, their exclusive
         // prefix sums (positions in the new buffer, inner-node ids), then the writes.
@@ -163,35 +182,41 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
                 merge_at += merge;
             }
         }
-        tasks.into_par_iter().for_each(|(k, dst, dst_id, ch, first_merge)| {
-            // Branch-free: whether a cluster merges is a coin flip to the branch predictor. Each
-            // cluster is written at w (united with its partner when it performs a merge; with
-            // itself otherwise) and w only advances when it stays valid, so an invalid one is
-            // overwritten by the next. The `w < len` guards are almost always true.
-            let (mut w, mut m) = (0usize, 0usize);
-            let (len, mlen) = (dst_id.len(), ch.len());
-            for i in k * CHUNK..(k * CHUNK + CHUNK).min(c) {
-                let j = nn[i] as usize;
-                let mutual = nn[j] as usize == i;
-                let keep = !mutual || i < j;
-                let merge = mutual && i < j;
-                let p = if merge { j } else { i };
-                if w < len {
-                    // The lower index merges; the new cluster takes its place (thesis 3.6.1).
-                    for a in 0..3 {
-                        dst[a][w] = mn(cl[a][i], cl[a][p]);
-                        dst[a + 3][w] = mx(cl[a + 3][i], cl[a + 3][p]);
+        tasks
+            .into_par_iter()
+            .for_each(|(k, dst, dst_id, ch, first_merge)| {
+                // Branch-free: whether a cluster merges is a coin flip to the branch predictor. Each
+                // cluster is written at w (united with its partner when it performs a merge; with
+                // itself otherwise) and w only advances when it stays valid, so an invalid one is
+                // overwritten by the next. The `w < len` guards are almost always true.
+                let (mut w, mut m) = (0usize, 0usize);
+                let (len, mlen) = (dst_id.len(), ch.len());
+                for i in k * CHUNK..(k * CHUNK + CHUNK).min(c) {
+                    let j = nn[i] as usize;
+                    let mutual = nn[j] as usize == i;
+                    let keep = !mutual || i < j;
+                    let merge = mutual && i < j;
+                    let p = if merge { j } else { i };
+                    if w < len {
+                        // The lower index merges; the new cluster takes its place (thesis 3.6.1).
+                        for a in 0..3 {
+                            dst[a][w] = mn(cl[a][i], cl[a][p]);
+                            dst[a + 3][w] = mx(cl[a + 3][i], cl[a + 3][p]);
+                        }
+                        dst_id[w] = if merge {
+                            (n + first_merge + m) as u32
+                        } else {
+                            ids[i]
+                        };
                     }
-                    dst_id[w] = if merge { (n + first_merge + m) as u32 } else { ids[i] };
+                    if m < mlen {
+                        ch[m] = [ids[i], ids[p]];
+                    }
+                    w += keep as usize;
+                    m += merge as usize;
                 }
-                if m < mlen {
-                    ch[m] = [ids[i], ids[p]];
-                }
-                w += keep as usize;
-                m += merge as usize;
-            }
-            debug_assert_eq!((w, m), (len, mlen));
-        });
+                debug_assert_eq!((w, m), (len, mlen));
+            });
         // Mutual pairs always exist (the pair minimizing (distance, lower index, higher index) over
         // all candidate pairs is one), so every iteration makes progress.
         debug_assert!(merge_at > merged);
@@ -217,7 +242,8 @@ pub(crate) const RUN: usize = 64;
 /// Returns (merges made, clusters left); buffers are compacted in place.
 fn premerge_runs(cl: &mut Boxes, ids: &mut [u32], children: &mut [[u32; 2]]) -> (usize, usize) {
     let n = ids.len();
-    let same = |c: &Boxes, i: usize, j: usize| (0..6).all(|a| c.c[a][i].to_bits() == c.c[a][j].to_bits());
+    let same =
+        |c: &Boxes, i: usize, j: usize| (0..6).all(|a| c.c[a][i].to_bits() == c.c[a][j].to_bits());
     // Runs (start, length) that start in each chunk; a chunk may read past its end to finish one.
     let runs: Vec<(usize, usize)> = (0..n.div_ceil(CHUNK))
         .into_par_iter()
@@ -303,7 +329,7 @@ fn nearest(cl: &[&[f32]; 6], base: usize, out: &mut [u32], r: usize, simd: bool)
     let lo = base.saturating_sub(r);
     let hi = base + out.len(); // exclusive
     let top = (hi + r).min(c); // candidates up to top - 1
-    // Best right neighbour (distance, index) of i in lo..hi; best left neighbour of j in lo..top.
+                               // Best right neighbour (distance, index) of i in lo..hi; best left neighbour of j in lo..top.
     let mut rd = vec![f32::INFINITY; hi - lo];
     let mut rj = vec![0u32; hi - lo];
     let mut ld = vec![f32::INFINITY; top - lo];
@@ -312,7 +338,17 @@ fn nearest(cl: &[&[f32]; 6], base: usize, out: &mut [u32], r: usize, simd: bool)
         let m = hi.min(c - k) - lo; // pairs (i, i + k) for i in lo..lo + m
         let a: [&[f32]; 6] = std::array::from_fn(|x| &cl[x][lo..lo + m]);
         let b: [&[f32]; 6] = std::array::from_fn(|x| &cl[x][lo + k..lo + k + m]);
-        pass(a, b, &mut rd[..m], &mut rj[..m], &mut ld[k..k + m], &mut lj[k..k + m], lo as u32, k as u32, simd);
+        pass(
+            a,
+            b,
+            &mut rd[..m],
+            &mut rj[..m],
+            &mut ld[k..k + m],
+            &mut lj[k..k + m],
+            lo as u32,
+            k as u32,
+            simd,
+        );
     }
     for (x, o) in out.iter_mut().enumerate() {
         let i = base + x - lo;
@@ -325,7 +361,17 @@ fn nearest(cl: &[&[f32]; 6], base: usize, out: &mut [u32], r: usize, simd: bool)
 /// Both use the same IEEE operations in the same order (no FMA), so they give identical bits.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn pass(a: [&[f32]; 6], b: [&[f32]; 6], rd: &mut [f32], rj: &mut [u32], ld: &mut [f32], lj: &mut [u32], i0: u32, k: u32, simd: bool) {
+fn pass(
+    a: [&[f32]; 6],
+    b: [&[f32]; 6],
+    rd: &mut [f32],
+    rj: &mut [u32],
+    ld: &mut [f32],
+    lj: &mut [u32],
+    i0: u32,
+    k: u32,
+    simd: bool,
+) {
     let m = rd.len();
     let a: [&[f32]; 6] = a.map(|s| &s[..m]);
     let b: [&[f32]; 6] = b.map(|s| &s[..m]);
@@ -378,10 +424,21 @@ fn avx2_available() -> bool {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn pass_avx2(a: &[&[f32]; 6], b: &[&[f32]; 6], rd: &mut [f32], rj: &mut [u32], ld: &mut [f32], lj: &mut [u32], i0: u32, k: u32) -> usize {
+unsafe fn pass_avx2(
+    a: &[&[f32]; 6],
+    b: &[&[f32]; 6],
+    rd: &mut [f32],
+    rj: &mut [u32],
+    ld: &mut [f32],
+    lj: &mut [u32],
+    i0: u32,
+    k: u32,
+) -> usize {
     use std::arch::x86_64::*;
     let m = rd.len();
-    debug_assert!(a.iter().chain(b).all(|s| s.len() == m) && rj.len() == m && ld.len() == m && lj.len() == m);
+    debug_assert!(
+        a.iter().chain(b).all(|s| s.len() == m) && rj.len() == m && ld.len() == m && lj.len() == m
+    );
     let big = _mm256_set1_ps(f32::MAX);
     let i0 = i0 as i32;
     let mut iv = _mm256_setr_epi32(i0, i0 + 1, i0 + 2, i0 + 3, i0 + 4, i0 + 5, i0 + 6, i0 + 7);
@@ -393,9 +450,18 @@ unsafe fn pass_avx2(a: &[&[f32]; 6], b: &[&[f32]; 6], rd: &mut [f32], rj: &mut [
     let mut t = 0;
     while t + 8 <= m {
         let l = |p: *const f32| _mm256_loadu_ps(p.add(t));
-        let ex = _mm256_sub_ps(_mm256_max_ps(l(pa[3]), l(pb[3])), _mm256_min_ps(l(pa[0]), l(pb[0])));
-        let ey = _mm256_sub_ps(_mm256_max_ps(l(pa[4]), l(pb[4])), _mm256_min_ps(l(pa[1]), l(pb[1])));
-        let ez = _mm256_sub_ps(_mm256_max_ps(l(pa[5]), l(pb[5])), _mm256_min_ps(l(pa[2]), l(pb[2])));
+        let ex = _mm256_sub_ps(
+            _mm256_max_ps(l(pa[3]), l(pb[3])),
+            _mm256_min_ps(l(pa[0]), l(pb[0])),
+        );
+        let ey = _mm256_sub_ps(
+            _mm256_max_ps(l(pa[4]), l(pb[4])),
+            _mm256_min_ps(l(pa[1]), l(pb[1])),
+        );
+        let ez = _mm256_sub_ps(
+            _mm256_max_ps(l(pa[5]), l(pb[5])),
+            _mm256_min_ps(l(pa[2]), l(pb[2])),
+        );
         let sum = _mm256_add_ps(_mm256_mul_ps(ex, ey), _mm256_mul_ps(ey, ez));
         let d = _mm256_min_ps(_mm256_add_ps(sum, _mm256_mul_ps(ez, ex)), big);
         // Best right neighbour of i: strictly closer.
@@ -403,13 +469,19 @@ unsafe fn pass_avx2(a: &[&[f32]; 6], b: &[&[f32]; 6], rd: &mut [f32], rj: &mut [
         let c = _mm256_cmp_ps::<_CMP_LT_OQ>(d, r0);
         _mm256_storeu_ps(prd.add(t), _mm256_blendv_ps(r0, d, c));
         let j = _mm256_castsi256_ps(_mm256_add_epi32(iv, kv));
-        _mm256_storeu_ps(prj.add(t), _mm256_blendv_ps(_mm256_loadu_ps(prj.add(t)), j, c));
+        _mm256_storeu_ps(
+            prj.add(t),
+            _mm256_blendv_ps(_mm256_loadu_ps(prj.add(t)), j, c),
+        );
         // Best left neighbour of i + k: closer or equal.
         let l0 = _mm256_loadu_ps(pld.add(t));
         let c = _mm256_cmp_ps::<_CMP_LE_OQ>(d, l0);
         _mm256_storeu_ps(pld.add(t), _mm256_blendv_ps(l0, d, c));
         let i = _mm256_castsi256_ps(iv);
-        _mm256_storeu_ps(plj.add(t), _mm256_blendv_ps(_mm256_loadu_ps(plj.add(t)), i, c));
+        _mm256_storeu_ps(
+            plj.add(t),
+            _mm256_blendv_ps(_mm256_loadu_ps(plj.add(t)), i, c),
+        );
         iv = _mm256_add_epi32(iv, eight);
         t += 8;
     }

@@ -20,7 +20,11 @@ struct Codes {
 
 impl Codes {
     fn sorted(&self) -> SortedCodes<'_> {
-        SortedCodes { order: &self.order, codes: &self.codes, code_bits: 3 * self.bits }
+        SortedCodes {
+            order: &self.order,
+            codes: &self.codes,
+            code_bits: 3 * self.bits,
+        }
     }
 }
 
@@ -42,7 +46,11 @@ fn morton(centers: &[Vec3], bits: u32) -> Codes {
         .iter()
         .enumerate()
         .map(|(i, c)| {
-            let (x, y, z) = (q(c.x, b.min.x, b.max.x), q(c.y, b.min.y, b.max.y), q(c.z, b.min.z, b.max.z));
+            let (x, y, z) = (
+                q(c.x, b.min.x, b.max.x),
+                q(c.y, b.min.y, b.max.y),
+                q(c.z, b.min.z, b.max.z),
+            );
             let mut code = 0u64;
             for k in (0..bits).rev() {
                 code = (code << 3) | ((x >> k) & 1) << 2 | ((y >> k) & 1) << 1 | ((z >> k) & 1);
@@ -51,15 +59,22 @@ fn morton(centers: &[Vec3], bits: u32) -> Codes {
         })
         .collect();
     keyed.sort_unstable();
-    Codes { order: keyed.iter().map(|k| k.1).collect(), codes: keyed.iter().map(|k| k.0).collect(), bits }
+    Codes {
+        order: keyed.iter().map(|k| k.1).collect(),
+        codes: keyed.iter().map(|k| k.0).collect(),
+        bits,
+    }
 }
 
 type Builder = (String, Box<dyn Fn(&[Aabb], &SortedCodes) -> Bvh + Sync>);
 
 fn builders() -> Vec<Builder> {
-    let mut v: Vec<Builder> = vec![("lbvh".into(), Box::new(|b, s| lbvh::build(b, s)))];
+    let mut v: Vec<Builder> = vec![("lbvh".into(), Box::new(lbvh::build))];
     for radius in [1, 2, 10, 25] {
-        v.push((format!("ploc:{radius}"), Box::new(move |b, s| ploc::build(b, s, &PlocConfig { radius }))));
+        v.push((
+            format!("ploc:{radius}"),
+            Box::new(move |b, s| ploc::build(b, s, &PlocConfig { radius })),
+        ));
     }
     v
 }
@@ -71,7 +86,12 @@ fn single_prim_leaves(bvh: &Bvh, n: usize) {
 
 #[test]
 fn closest_hits_match_brute_force() {
-    for spec in ["gen:sphere:n=2000", "gen:degenerate:n=1500", "gen:outlier:n=2000,e=30", "gen:city:blocks=4"] {
+    for spec in [
+        "gen:sphere:n=2000",
+        "gen:degenerate:n=1500",
+        "gen:outlier:n=2000,e=30",
+        "gen:city:blocks=4",
+    ] {
         let scene = bvhlab_geom::load_scene(spec).expect("generated scene");
         let (boxes, centers) = scene.boxes_and_centers();
         // Rays over the whole scene, plus rays over all but the last triangle: the outlier scene
@@ -170,7 +190,10 @@ fn lbvh_is_the_radix_tree_of_the_augmented_keys() {
     for bits in [10, 4, 1] {
         let codes = morton(&centers, bits);
         let bvh = lbvh::build(&boxes, &codes.sorted());
-        assert_eq!(bvh.prim_indices, codes.order, "leaves in key order ({bits} bits)");
+        assert_eq!(
+            bvh.prim_indices, codes.order,
+            "leaves in key order ({bits} bits)"
+        );
         let key = |i: usize| ((codes.codes[i] as u128) << 64) | i as u128;
         let prefix = |i: usize| (key(i) ^ key(i + 1)).leading_zeros();
         let ranges = leaf_ranges(&bvh);
@@ -182,7 +205,11 @@ fn lbvh_is_the_radix_tree_of_the_augmented_keys() {
             let split = ranges[node.first as usize].1 - 1; // last leaf of the left child
             let shortest = (a..b - 1).map(prefix).min().unwrap();
             assert_eq!(prefix(split), shortest, "node {k} ({bits} bits)");
-            assert_eq!((a..b - 1).filter(|&i| prefix(i) == shortest).count(), 1, "node {k}");
+            assert_eq!(
+                (a..b - 1).filter(|&i| prefix(i) == shortest).count(),
+                1,
+                "node {k}"
+            );
         }
     }
 }
@@ -231,8 +258,12 @@ fn ploc_reference(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u3
         let nn: Vec<usize> = (0..c)
             .map(|i| {
                 let cand = (i.saturating_sub(r)..(i + r + 1).min(c)).filter(|&j| j != i);
-                cand.min_by(|&j, &k| dist(&cl[i].0, &cl[j].0).total_cmp(&dist(&cl[i].0, &cl[k].0)).then(j.cmp(&k)))
-                    .unwrap()
+                cand.min_by(|&j, &k| {
+                    dist(&cl[i].0, &cl[j].0)
+                        .total_cmp(&dist(&cl[i].0, &cl[k].0))
+                        .then(j.cmp(&k))
+                })
+                .unwrap()
             })
             .collect();
         let mut next = Vec::with_capacity(c);
@@ -262,7 +293,12 @@ fn ploc_matches_the_sequential_reading_of_the_paper() {
     }
     let inputs: Vec<(&str, Vec<Aabb>)> = ["gen:degenerate:n=6000", "gen:terrain:n=5000"]
         .into_iter()
-        .map(|spec| (spec, bvhlab_geom::load_scene(spec).unwrap().boxes_and_centers().0))
+        .map(|spec| {
+            (
+                spec,
+                bvhlab_geom::load_scene(spec).unwrap().boxes_and_centers().0,
+            )
+        })
         .chain([("runs", runs), ("points", point_boxes(500))])
         .collect();
     for (spec, boxes) in inputs {
@@ -270,9 +306,19 @@ fn ploc_matches_the_sequential_reading_of_the_paper() {
         let codes = morton(&centers, 10);
         for radius in [1, 3, 10, 40] {
             let (children, root) = ploc_reference(&boxes, &codes.order, radius as usize);
-            let want = to_bvh(&boxes, &ClusterTree { leaf_prims: &codes.order, children: &children, root });
+            let want = to_bvh(
+                &boxes,
+                &ClusterTree {
+                    leaf_prims: &codes.order,
+                    children: &children,
+                    root,
+                },
+            );
             let got = ploc::build(&boxes, &codes.sorted(), &PlocConfig { radius });
-            assert!(got.canonical_bytes() == want.canonical_bytes(), "{spec} r={radius}");
+            assert!(
+                got.canonical_bytes() == want.canonical_bytes(),
+                "{spec} r={radius}"
+            );
         }
     }
 }
@@ -286,7 +332,10 @@ fn identical_bytes_at_one_and_two_threads() {
         let codes = morton(&centers, 10);
         for (name, build) in builders() {
             let run = |threads| {
-                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
                 pool.install(|| build(&boxes, &codes.sorted()).canonical_bytes())
             };
             assert!(run(1) == run(2), "{name} on {spec}");
@@ -301,13 +350,26 @@ fn with_the_real_encoder() {
     let scene = bvhlab_geom::load_scene("gen:outlier:n=3000,e=30").unwrap();
     let (boxes, centers) = scene.boxes_and_centers();
     let cfgs = [
-        EncodeConfig { bits: Bits::Auto(AutoFor::Lbvh), ..Default::default() },
-        EncodeConfig { bits: Bits::Auto(AutoFor::Ploc), ..Default::default() },
-        EncodeConfig { scheme: Scheme::Emc64Var, ..Default::default() },
+        EncodeConfig {
+            bits: Bits::Auto(AutoFor::Lbvh),
+            ..Default::default()
+        },
+        EncodeConfig {
+            bits: Bits::Auto(AutoFor::Ploc),
+            ..Default::default()
+        },
+        EncodeConfig {
+            scheme: Scheme::Emc64Var,
+            ..Default::default()
+        },
     ];
     for cfg in cfgs {
         let enc = encode(&boxes, &centers, &cfg);
-        let sorted = SortedCodes { order: &enc.order, codes: &enc.codes, code_bits: enc.code_bits };
+        let sorted = SortedCodes {
+            order: &enc.order,
+            codes: &enc.codes,
+            code_bits: enc.code_bits,
+        };
         for (name, build) in builders() {
             let bvh = build(&boxes, &sorted);
             if let Err(e) = validate(&bvh, &boxes) {
