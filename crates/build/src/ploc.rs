@@ -130,8 +130,9 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
     let mut cur_id: Vec<u32> = (0..n as u32).collect();
     // merges done so far = next free inner-node slot; c = current cluster count.
     let (mut merged, mut c) = premerge_runs(&mut cur, &mut cur_id, &mut children);
-    let mut next = cur.clone();
-    let mut next_id = cur_id.clone();
+    // Zeroed allocations (calloc): their pages are touched by the parallel writes, not here.
+    let mut next = Boxes::with_len(c);
+    let mut next_id = vec![0u32; c];
     let mut nn = vec![0u32; n];
     // Per-chunk (kept clusters, merges).
     let mut counts: Vec<(usize, usize)> = Vec::with_capacity(n.div_ceil(CHUNK));
