@@ -41,6 +41,9 @@ struct Gen {
 
 const N_MAX: u64 = 50_000_000;
 const SEED: Range = Range::Int(0, u64::MAX);
+const SHUFFLE_ABOUT: &str = "0: triangles in generation order (spatially coherent, like most files); \
+    k > 0: randomly permuted with seed k, so that only the codes, not the input order, carry locality \
+    (Morton failure studies: builders break ties between equal codes by input order)";
 
 fn table() -> Vec<Gen> {
     vec![
@@ -87,10 +90,11 @@ fn table() -> Vec<Gen> {
                     ("blocks", "30", "buildings per side (12 blocks^2 + 2 triangles)"),
                     ("ground", "100", "ground quad side relative to the city side"),
                     ("seed", "1", "random seed"),
+                    ("shuffle", "0", SHUFFLE_ABOUT),
                 ],
             },
-            ranges: &[Range::Int(1, 2000), Range::Float(1.0, 1e6), SEED],
-            build: |p| city(p.int("blocks"), p.float("ground"), p.int("seed")),
+            ranges: &[Range::Int(1, 2000), Range::Float(1.0, 1e6), SEED, SEED],
+            build: |p| shuffled(city(p.int("blocks"), p.float("ground"), p.int("seed")), p.int("shuffle")),
         },
         Gen {
             info: GeneratorInfo {
@@ -99,10 +103,11 @@ fn table() -> Vec<Gen> {
                 params: &[
                     ("n", "20000", "approximate triangle count of the sphere"),
                     ("e", "10", "outlier distance from the sphere centre is 2^e sphere diameters"),
+                    ("shuffle", "0", SHUFFLE_ABOUT),
                 ],
             },
-            ranges: &[Range::Int(1, N_MAX), Range::Int(0, 100)],
-            build: |p| outlier(p.int("n"), p.int("e")),
+            ranges: &[Range::Int(1, N_MAX), Range::Int(0, 100), SEED],
+            build: |p| shuffled(outlier(p.int("n"), p.int("e")), p.int("shuffle")),
         },
         Gen {
             info: GeneratorInfo {
@@ -386,6 +391,18 @@ fn hairball(n: u64, width: f64, seed: u64) -> Vec<Triangle> {
             tri(a, b, c)
         })
         .collect()
+}
+
+/// Fisher-Yates permutation of the triangle order with seed `seed` (0: unchanged).
+fn shuffled(mut tris: Vec<Triangle>, seed: u64) -> Vec<Triangle> {
+    if seed != 0 {
+        let mut rng = Rng::new(seed);
+        for i in (1..tris.len()).rev() {
+            let j = rng.below(i as u64 + 1) as usize;
+            tris.swap(i, j);
+        }
+    }
+    tris
 }
 
 /// A blocks x blocks grid of box buildings (unit cells, footprints 30-90 % of a cell, heights

@@ -255,3 +255,26 @@ fn bad_specs_are_errors_naming_the_spec_and_choices() {
         assert!(e.to_string().contains(&format!("gen:{spec}")));
     }
 }
+
+#[test]
+fn shuffle_permutes_deterministically() {
+    let key = |t: &bvhlab_geom::Triangle| {
+        let mut v = Vec::new();
+        for p in t.v {
+            v.extend(p.to_array().map(f32::to_bits));
+        }
+        v
+    };
+    for spec in ["outlier:n=2000,e=12", "city:blocks=6"] {
+        let a = generate(spec).unwrap().triangles;
+        let b = generate(&format!("{spec},shuffle=7")).unwrap().triangles;
+        let c = generate(&format!("{spec},shuffle=7")).unwrap().triangles;
+        assert_eq!(b, c, "{spec}: same seed, same order");
+        assert_ne!(a, b, "{spec}: order changed");
+        let mut ka: Vec<_> = a.iter().map(key).collect();
+        let mut kb: Vec<_> = b.iter().map(key).collect();
+        ka.sort();
+        kb.sort();
+        assert_eq!(ka, kb, "{spec}: same triangles");
+    }
+}
