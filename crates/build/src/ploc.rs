@@ -25,9 +25,10 @@ pub struct PlocConfig {
     pub radius: u32,
 }
 
-/// Clusters per parallel task of the neighbour search. Chunking never changes the result (see the
-/// module comment), only the cost: each chunk recomputes the at most r(r+1)/2 distances across its
-/// left border, and 2048 clusters keep a chunk's working set (about 50 KB) near L1.
+/// Clusters per parallel task (the neighbour search uses at least 8 r). Chunking never changes the
+/// result (see the module comment), only the cost: each chunk of the neighbour search recomputes
+/// the at most r(r+1)/2 distances across its left border, and 2048 clusters keep a chunk's working
+/// set (about 50 KB) near L1.
 const CHUNK: usize = 2048;
 
 /// One primitive per leaf; the caller applies the SAH compaction.
@@ -114,6 +115,8 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
     }
     let s = area_scale(boxes);
     let simd = avx2_available();
+    // Large radii get larger chunks, so the recomputed border pairs stay a small share.
+    let nn_chunk = CHUNK.max(r.saturating_mul(8));
     // The two cluster buffers (boxes and node ids), swapped after every iteration.
     let mut cur = Boxes::with_len(n);
     {
@@ -141,9 +144,9 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
         let ids = &cur_id[..c];
         // (a) Nearest neighbours.
         nn[..c]
-            .par_chunks_mut(CHUNK)
+            .par_chunks_mut(nn_chunk)
             .enumerate()
-            .for_each(|(k, out)| nearest(&cl, k * CHUNK, out, r, simd));
+            .for_each(|(k, out)| nearest(&cl, k * nn_chunk, out, r, simd));
         let nn = &nn[..c];
         // (b) + (c): per chunk the clusters it keeps and the merges it performs, their exclusive
         // prefix sums (positions in the new buffer, inner-node ids), then the writes.
