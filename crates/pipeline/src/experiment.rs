@@ -453,4 +453,19 @@ max = [16.0, 4.0, 16.0]
         let e = parse(&format!("{head}build = \"lbvh\"\n[focus]\nmin = [0, 0, 0]\n")).unwrap_err();
         assert!(e.exit_code() == 2 && e.message().contains("max"), "{e}");
     }
+
+    /// The experiment files shipped in `experiments/` parse with the current registry (a file whose
+    /// scenes are missing on this machine is skipped for that reason only).
+    #[test]
+    fn shipped_experiments_parse() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../experiments");
+        let Ok(entries) = std::fs::read_dir(&dir) else { return };
+        for f in entries.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "toml")) {
+            match Experiment::load(&f, &Registry::standard()) {
+                Ok(e) => assert!(!e.chains().is_empty(), "{}", f.display()),
+                Err(e) if e.message().contains("scene file not found") => eprintln!("skipped: {e}"),
+                Err(e) => panic!("{e}"),
+            }
+        }
+    }
 }

@@ -34,9 +34,10 @@ pub fn sweep(exp: &Experiment, runner: &mut Runner, progress: bool) -> Result<Sw
         }
         last_scene = Some(&c.scene);
         bar.set_message(format!(
-            "{} {}{}",
+            "{} {}{}{}",
             crate::stages::scene_name(&c.scene),
             c.build,
+            c.encode.as_ref().map(|e| format!(" {e}")).unwrap_or_default(),
             c.rays.map(|r| format!(" {}", r.canonical())).unwrap_or_default()
         ));
         let row = runner.run_chain(c, &exp.name);
