@@ -156,6 +156,39 @@ fn tiny_and_degenerate_inputs() {
 }
 
 #[test]
+fn non_finite_boxes_do_not_panic() {
+    // Loading drops non-finite triangles, but the builder must still terminate with a complete tree.
+    let mut boxes = random_boxes(300, 0.05, 12);
+    boxes[3] = Aabb::new(bvhlab_bvh::Vec3::NAN, bvhlab_bvh::Vec3::NAN);
+    boxes[50].max.x = f32::INFINITY;
+    boxes[60] = Aabb::new(
+        bvhlab_bvh::Vec3::splat(-f32::MAX),
+        bvhlab_bvh::Vec3::splat(f32::MAX),
+    );
+    boxes[70] = Aabb::EMPTY;
+    let codes: Vec<u64> = (0..boxes.len() as u64).map(|i| i / 7).collect();
+    let order: Vec<u32> = (0..boxes.len() as u32).collect();
+    for cfg in CONFIGS {
+        let bvh = aac::build(
+            &boxes,
+            &SortedCodes {
+                order: &order,
+                codes: &codes,
+                code_bits: 6,
+            },
+            &cfg,
+        );
+        assert_eq!(bvh.nodes.len(), 2 * boxes.len() - 1, "{cfg:?}");
+        let mut prims = bvh.prim_indices.clone();
+        prims.sort_unstable();
+        assert!(
+            prims.iter().enumerate().all(|(i, &p)| p as usize == i),
+            "{cfg:?}: every primitive once"
+        );
+    }
+}
+
+#[test]
 fn huge_coordinates_do_not_panic() {
     // Areas overflow to infinity: every distance ties, the lowest position wins, the tree is valid.
     let mut boxes = random_boxes(300, 0.05, 6);
