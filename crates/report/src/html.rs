@@ -1,6 +1,7 @@
 //! index.html: one self-contained page (inline CSS, relative links) so it opens from disk.
+use crate::analysis::{method_key, Flag};
 use crate::plots::{fmt_num, Plot};
-use crate::reference::ReferenceReport;
+use crate::reference::{ReferenceReport, WITHIN_PERCENT};
 use bvhlab_pipeline::ResultRow;
 use std::fmt::Write;
 
@@ -37,6 +38,8 @@ pub struct Section {
     pub title: String,
     pub intro: String,
     pub plots: Vec<Plot>,
+    /// Raw HTML after the plots (tables made by the section's builder).
+    pub extra: String,
 }
 
 pub struct Heatmap {
@@ -62,7 +65,9 @@ figure img{max-width:100%;border:1px solid #ddd}figcaption{font-size:0.9em;color
 table{border-collapse:collapse;font-size:0.85em}th,td{border:1px solid #ccc;padding:2px 6px}\
 th{background:#f0f0f0;position:sticky;top:0}td.n{text-align:right;font-variant-numeric:tabular-nums}\
 tr.invalid td{background:#fdd}.warn{color:#a00}.heat img{width:320px;image-rendering:pixelated}\
-nav a{margin-right:1em}";
+nav a{margin-right:1em}.invalid-box{border:3px solid #c00;background:#fee;padding:0.2em 1em 1em;margin:1em 0}\
+.invalid-box h2{color:#c00;border-bottom-color:#c00;margin-top:0.4em}.ok{color:#070;font-weight:bold}\
+h3{margin-top:1.2em}";
 
 pub fn render(p: &Page) -> String {
     let mut h = String::new();
@@ -82,7 +87,11 @@ pub fn render(p: &Page) -> String {
         escape(&p.generated),
         p.rows.len()
     );
+    let invalid = invalid_chains(p.rows);
     h.push_str("<nav>");
+    if !invalid.is_empty() {
+        let _ = write!(h, "<a href=\"#invalid\" class=\"warn\"><b>{} INVALID</b></a>", invalid.len());
+    }
     for s in &p.sections {
         let _ = write!(h, "<a href=\"#{}\">{}</a>", s.id, escape(&s.title));
     }
@@ -92,6 +101,7 @@ pub fn render(p: &Page) -> String {
     if p.rows.is_empty() {
         h.push_str("<p class=\"warn\">No results: the experiment produced no rows.</p>\n");
     }
+    invalid_box(&mut h, &invalid);
     if !p.problems.is_empty() {
         h.push_str("<h2>Problems while making this report</h2><ul>");
         for e in &p.problems {
@@ -102,12 +112,13 @@ pub fn render(p: &Page) -> String {
 
     for s in &p.sections {
         let _ = writeln!(h, "<h2 id=\"{}\">{}</h2>\n<p>{}</p>", s.id, escape(&s.title), escape(&s.intro));
-        if s.plots.is_empty() {
+        if s.plots.is_empty() && s.extra.is_empty() {
             h.push_str("<p>No data for this plot.</p>\n");
         }
         for plot in &s.plots {
             figure(&mut h, plot);
         }
+        h.push_str(&s.extra);
     }
 
     h.push_str("<h2 id=\"heatmaps\">Heat maps</h2>\n");
@@ -158,6 +169,9 @@ fn reference_section(h: &mut String, p: &Page) {
     h.push_str(
         "<p>Only scenes that are the same model as a thesis scene (same triangle count) are compared; \
          FSW and BIN map to our chains as listed in crates/report/src/reference.rs. \
+         AHQ/ALQ/PL1-3 are matched on our Morton-code rows (encoder morton, bits=auto, scene bounds, no grid); \
+         the EMC-64-var rows of table 25 are ratios emc64-var / morton of the same builder and parameters, \
+         in percent (build time = encode + build + compaction). \
          Difference = (ours &minus; paper) / paper.</p>\n",
     );
     if !rep.notes.is_empty() {
@@ -171,16 +185,18 @@ fn reference_section(h: &mut String, p: &Page) {
         h.push_str("<p>No row of this experiment reproduces a thesis table cell.</p>\n");
         return;
     }
-    h.push_str(
+    let _ = write!(
+        h,
         "<table><tr><th>metric</th><th>scene (ours)</th><th>thesis scene</th><th>thesis method</th>\
-         <th>our chain</th><th>ours</th><th>paper</th><th>difference</th></tr>\n",
+         <th>our chain</th><th>ours</th><th>paper</th><th>difference</th><th>within {w}%</th></tr>\n",
+        w = fmt_num(WITHIN_PERCENT)
     );
     for c in &rep.comparisons {
         let diff = if c.diff_percent.is_finite() { format!("{:+.1}%", c.diff_percent) } else { "n/a".into() };
         let _ = writeln!(
             h,
             "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"n\">{}</td>\
-             <td class=\"n\">{}</td><td class=\"n\">{}</td></tr>",
+             <td class=\"n\">{}</td><td class=\"n\">{}</td><td>{}</td></tr>",
             escape(&c.metric),
             escape(&c.scene_name),
             escape(&c.thesis_scene),
@@ -188,7 +204,8 @@ fn reference_section(h: &mut String, p: &Page) {
             escape(&c.method),
             fmt_num(c.ours),
             fmt_num(c.paper),
-            diff
+            diff,
+            if c.within() { "<span class=\"ok\">&#10003;</span>" } else { "" }
         );
     }
     h.push_str("</table>\n");
@@ -212,7 +229,8 @@ fn results_table(h: &mut String, rows: &[ResultRow]) {
          Times are medians in seconds. Rows failing structural validation are red.</p>\n",
     );
     let head = [
-        "scene", "method", "rays", "triangles", "dropped", "SAH cost", "build s", "compact s",
+        "scene", "method", "rays", "triangles", "dropped", "SAH cost", "focus SAH", "encode s", "build s",
+        "compact s", "total build s", "dup codes",
         "inner SA", "leaf SA", "refs/leaf", "leaves", "depth", "bytes/tri", "steps/ray",
         "isects/ray", "Mrays/s", "valid",
     ];
@@ -232,8 +250,12 @@ fn results_table(h: &mut String, rows: &[ResultRow]) {
             r.triangles.to_string(),
             r.dropped_triangles.to_string(),
             fmt_num(r.sah_cost),
+            opt(r.focus_sah_cost),
+            opt(r.encode_seconds),
             fmt_num(r.build_seconds),
             fmt_num(r.compact_seconds),
+            fmt_num(crate::analysis::total_build_seconds(r)),
+            opt(r.duplicate_code_fraction),
             fmt_num(r.inner_sa_ratio),
             fmt_num(r.leaf_sa_ratio),
             fmt_num(r.refs_per_leaf),
@@ -254,6 +276,87 @@ fn results_table(h: &mut String, rows: &[ResultRow]) {
         let _ = writeln!(h, "<td>{}</td></tr>", if r.valid { "yes" } else { "NO" });
     }
     h.push_str("</table>\n");
+}
+
+/// Invalid chains: (first row, number of rows) per scene and method key, in row order.
+fn invalid_chains(rows: &[ResultRow]) -> Vec<(&ResultRow, usize)> {
+    let mut out: Vec<(&ResultRow, usize)> = Vec::new();
+    for r in rows.iter().filter(|r| !r.valid) {
+        match out.iter_mut().find(|(q, _)| q.scene == r.scene && method_key(q) == method_key(r)) {
+            Some((_, n)) => *n += 1,
+            None => out.push((r, 1)),
+        }
+    }
+    out
+}
+
+/// A red box at the top of the page: every chain whose BVH failed structural validation. Their
+/// numbers are not trustworthy; they stay in every table (red rows) so nothing is hidden.
+fn invalid_box(h: &mut String, invalid: &[(&ResultRow, usize)]) {
+    if invalid.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        h,
+        "<div class=\"invalid-box\"><h2 id=\"invalid\">{} invalid result{}: BVH failed validation</h2>\
+         <p>These chains produced a BVH that fails structural validation (every triangle exactly once, \
+         children inside parents, leaves around their triangles). Their costs, times and ray counts \
+         are not trustworthy; they are red in every table below.</p>",
+        invalid.len(),
+        if invalid.len() == 1 { "" } else { "s" }
+    );
+    h.push_str(
+        "<table><tr><th>scene</th><th>method</th><th>builder</th><th>build params</th><th>encoder</th>\
+         <th>encode params</th><th>compact</th><th>rows</th></tr>\n",
+    );
+    for (r, n) in invalid {
+        let _ = writeln!(
+            h,
+            "<tr class=\"invalid\"><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>\
+             <td class=\"n\">{}</td></tr>",
+            escape(&r.scene_name),
+            escape(&r.method),
+            escape(&r.builder),
+            escape(&r.build_params),
+            escape(r.encoder.as_deref().unwrap_or("")),
+            escape(r.encode_params.as_deref().unwrap_or("")),
+            escape(&r.compact),
+            n
+        );
+    }
+    h.push_str("</table></div>\n");
+}
+
+/// The flags table (see `analysis::flags`); invalid chains red.
+pub fn flags_table(flags: &[Flag]) -> String {
+    let mut h = String::new();
+    if flags.is_empty() {
+        h.push_str("<p class=\"ok\">No method is flagged.</p>\n");
+        return h;
+    }
+    h.push_str(
+        "<table><tr><th>scene</th><th>metric</th><th>method</th><th>value</th><th>best</th>\
+         <th>best method</th><th>ratio</th><th>valid</th></tr>\n",
+    );
+    for f in flags {
+        let cls = if f.valid { "" } else { " class=\"invalid\"" };
+        let ratio = if f.ratio.is_finite() { format!("{}x", fmt_num(f.ratio)) } else { "n/a".into() };
+        let _ = writeln!(
+            h,
+            "<tr{cls}><td>{}</td><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>\
+             <td>{}</td><td class=\"n\">{}</td><td>{}</td></tr>",
+            escape(&f.scene_name),
+            f.metric,
+            escape(&f.method),
+            fmt_num(f.value),
+            fmt_num(f.best),
+            escape(&f.best_method),
+            ratio,
+            if f.valid { "yes" } else { "NO" }
+        );
+    }
+    h.push_str("</table>\n");
+    h
 }
 
 /// `YYYY-MM-DD HH:MM:SS UTC` without a date crate (civil-from-days, Howard Hinnant's algorithm).

@@ -1,10 +1,12 @@
 //! The report: every result row in a polars DataFrame (results.parquet, results.csv), plots made with
 //! plotters (PNG and SVG), and index.html. Polars lives only here so algorithm crates build fast.
+pub mod analysis;
 pub mod frame;
 mod fsutil;
 mod html;
 pub mod plots;
 pub mod reference;
+mod sweeps;
 
 pub use plots::pareto::pareto_front;
 
@@ -75,7 +77,8 @@ pub fn write_report(
                 .map(|r| ParetoPoint {
                     label: r.method.clone(),
                     method_index: method_index(&r.method),
-                    seconds: r.build_seconds + r.compact_seconds,
+                    // Encode + build + compaction: Morton builders pay for their codes and sort.
+                    seconds: analysis::total_build_seconds(r),
                     sah_cost: r.sah_cost,
                 })
                 .collect(),
@@ -123,6 +126,8 @@ pub fn write_report(
         }
     }
 
+    let sweep_section = sweeps::section(rows, &mut |fig, stem, title, problems| plot(fig, stem, title, problems), &mut problems);
+
     let heatmaps = copy_heatmaps(out_dir, rows, &mut problems);
 
     let reference = reference_dir.map(|d| reference::compare(d, rows));
@@ -148,21 +153,39 @@ pub fn write_report(
             title: "Build time vs SAH cost (Pareto front)".into(),
             intro: "One point per chain (builder, parameters, compaction) and scene. Filled, ringed \
                     points are on the Pareto front (no other chain is both faster and cheaper); the \
-                    line connects them. Time is build plus compaction (medians)."
+                    line connects them. Time is the whole construction: encode (Morton/EMC codes \
+                    and their sort) + build + compaction (medians)."
                 .into(),
             plots: pareto,
+            extra: String::new(),
         },
         Section {
             id: "sah",
             title: "SAH cost per method".into(),
             intro: "SAH cost of each chain per scene, with the cost constants of the run.".into(),
             plots: sah,
+            extra: String::new(),
         },
         Section {
             id: "rays",
             title: "Traversal steps and intersections per ray".into(),
             intro: "Per scene and ray set, for chains with a measure stage.".into(),
             plots: rays,
+            extra: String::new(),
+        },
+        sweep_section,
+        Section {
+            id: "flags",
+            title: format!("Flags: cost above {}x the best method", analysis::FLAG_RATIO),
+            intro: format!(
+                "Every (scene, method) whose SAH cost is more than {}x the best valid method's on that \
+                 scene, or not a finite number. Scenes with a focus box are compared by focus_sah_cost \
+                 (the object's subtree: with a far outlier or a huge ground plane the whole-scene cost \
+                 says little), other scenes by sah_cost; the metric column says which.",
+                analysis::FLAG_RATIO
+            ),
+            plots: Vec::new(),
+            extra: html::flags_table(&analysis::flags(rows)),
         },
     ];
     let page = Page {
@@ -181,7 +204,7 @@ pub fn write_report(
 }
 
 /// Object-safe wrapper so one closure can render every figure type.
-trait DynFigure {
+pub(crate) trait DynFigure {
     fn render(&self, dir: &Path, stem: &str, title: &str) -> Result<Plot, String>;
 }
 

@@ -8,24 +8,62 @@ use bvhlab_pipeline::ResultRow;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-/// A thesis table column (method abbreviation) and the chain of ours that reproduces it. `params`
-/// lists `k=v` pairs that must hold; a key missing from a row's `build_params` counts as the
-/// builder's default (assumed equal). Adding a method is one line here.
+/// A thesis table column (method abbreviation) and the chain of ours that reproduces it, matched on
+/// the columns builder / build_params / encoder / encode_params / compact (never the label).
+/// `params` and `encode_params` list `k=v` pairs that must hold, alternatives separated by `|`; a
+/// key missing from a row counts as the default (assumed equal), but at least one key of the
+/// alternative must be present (so `preset=hq` does not match a row that spells out other
+/// delta/epsilon values). A value `auto` also matches `auto:<builder>`. Adding a method is one
+/// line here.
 pub struct MethodMap {
     pub abbrev: &'static str,
     pub builder: &'static str,
     pub params: &'static str,
-    pub compact: &'static str,
+    /// `None`: any (bottom-up builders compact inside their build stage).
+    pub compact: Option<&'static str>,
+    /// `None`: the row must have no encode stage.
+    pub encoder: Option<&'static str>,
+    pub encode_params: &'static str,
 }
 
+/// The thesis builds its Morton-code builders from plain Morton codes with the method's own code
+/// length (bits=auto), quantized in the scene box, no occupation grid.
+const ORIGINAL_CODES: &str = "bits=auto,bounds=scene,grid_bits=0";
+
 /// Thesis 4.1 / reference README: FSW full-sweep SAH and BIN binned SAH (16 bins, leaf threshold 2),
-/// both top-down with the SAH leaf-vs-split test and no compaction.
+/// both top-down with the SAH leaf-vs-split test and no compaction; AHQ/ALQ = AAC (table 2
+/// presets), PL1-3 = PLOC radius 10/25/100, all on Morton codes and SAH-compacted.
 pub const METHODS: &[MethodMap] = &[
-    MethodMap { abbrev: "FSW", builder: "sweep-sah", params: "leaf=2", compact: "none" },
+    MethodMap { abbrev: "FSW", builder: "sweep-sah", params: "leaf=2", compact: Some("none"), encoder: None, encode_params: "" },
     // The thesis stops binning when the centroid extent is tiny along *any* axis (3.1.1); our default
     // stops only along the split axis. The literal rule is what reproduces its BIN column.
-    MethodMap { abbrev: "BIN", builder: "binned-sah", params: "bins=16,centroid_stop=any-axis,leaf=2", compact: "none" },
+    MethodMap {
+        abbrev: "BIN",
+        builder: "binned-sah",
+        params: "bins=16,centroid_stop=any-axis,leaf=2",
+        compact: Some("none"),
+        encoder: None,
+        encode_params: "",
+    },
+    MethodMap { abbrev: "AHQ", builder: "aac", params: "delta=20,epsilon=0.1|preset=hq", compact: None, encoder: Some("morton"), encode_params: ORIGINAL_CODES },
+    MethodMap { abbrev: "ALQ", builder: "aac", params: "delta=4,epsilon=0.2|preset=fast", compact: None, encoder: Some("morton"), encode_params: ORIGINAL_CODES },
+    MethodMap { abbrev: "PL1", builder: "ploc", params: "radius=10", compact: None, encoder: Some("morton"), encode_params: ORIGINAL_CODES },
+    MethodMap { abbrev: "PL2", builder: "ploc", params: "radius=25", compact: None, encoder: Some("morton"), encode_params: ORIGINAL_CODES },
+    MethodMap { abbrev: "PL3", builder: "ploc", params: "radius=100", compact: None, encoder: Some("morton"), encode_params: ORIGINAL_CODES },
 ];
+
+/// Thesis table 25: EMC-64-var relative to the original Morton codes, same builder and parameters,
+/// in percent (cost and build time). Ours: emc64-var in the scene box without grid.
+pub const EMC_TABLE: &str = "frantal_t25_emc64var_relative_percent.tsv";
+pub const EMC_ENCODER: &str = "emc64-var";
+pub const EMC_PARAMS: &str = "bounds=scene,grid_bits=0";
+/// Methods of table 25 (abbreviations of `METHODS`).
+pub const EMC_METHODS: &[&str] = &["AHQ", "ALQ", "PL1", "PL2", "PL3"];
+pub const EMC_COST_LABEL: &str = "EMC-64-var / Morton SAH cost [%]";
+pub const EMC_BUILD_LABEL: &str = "EMC-64-var / Morton build time [%]";
+
+/// A comparison is marked as reproduced when |difference| is at most this many percent.
+pub const WITHIN_PERCENT: f64 = 3.0;
 
 /// A thesis table and the row value it corresponds to.
 pub struct MetricMap {
@@ -72,6 +110,13 @@ pub struct Comparison {
     pub paper: f64,
     /// (ours - paper) / paper * 100.
     pub diff_percent: f64,
+}
+
+impl Comparison {
+    /// |difference| <= `WITHIN_PERCENT`.
+    pub fn within(&self) -> bool {
+        self.diff_percent.is_finite() && self.diff_percent.abs() <= WITHIN_PERCENT
+    }
 }
 
 #[derive(Debug, Default)]
@@ -197,22 +242,60 @@ fn look_alike<'a>(scene_name: &str, scenes: &'a [ThesisScene]) -> Option<&'a The
     })
 }
 
-fn params_match(row_params: &str, wanted: &str) -> bool {
+fn value_match(have: &str, want: &str) -> bool {
+    have == want || (want == "auto" && have.starts_with("auto:"))
+}
+
+/// One alternative (`k=v,...`): every key present in the row has the wanted value, and at least one
+/// wanted key is present unless the row has no parameters at all (all defaults).
+fn alternative_match(row_params: &str, wanted: &str) -> bool {
     let have: BTreeMap<&str, &str> =
         row_params.split(',').filter_map(|kv| kv.split_once('=')).collect();
-    wanted
-        .split(',')
-        .filter_map(|kv| kv.split_once('='))
-        .all(|(k, v)| have.get(k).is_none_or(|h| *h == v))
+    let want: Vec<(&str, &str)> = wanted.split(',').filter_map(|kv| kv.split_once('=')).collect();
+    let present = want.iter().filter(|(k, _)| have.contains_key(k)).count();
+    (present > 0 || have.is_empty() || want.is_empty())
+        && want.iter().all(|(k, v)| have.get(k).is_none_or(|h| value_match(h, v)))
+}
+
+/// `wanted` is a `|`-separated list of alternatives; any one matching is enough.
+fn params_match(row_params: &str, wanted: &str) -> bool {
+    wanted.split('|').any(|alt| alternative_match(row_params, alt))
 }
 
 fn extra_params(row_params: &str, wanted: &str) -> usize {
-    let wanted: Vec<&str> = wanted.split(',').filter_map(|kv| kv.split_once('=')).map(|p| p.0).collect();
+    let wanted: Vec<&str> = wanted
+        .split(['|', ','])
+        .filter_map(|kv| kv.split_once('='))
+        .map(|p| p.0)
+        .collect();
     row_params
         .split(',')
         .filter_map(|kv| kv.split_once('='))
         .filter(|(k, _)| !wanted.contains(k))
         .count()
+}
+
+/// Whether row `r` is a run of thesis method `m` (builder, parameters, encoder, compaction); the
+/// number of parameters beyond the mapping (fewer = better match) if so.
+pub fn row_matches(r: &ResultRow, m: &MethodMap) -> Option<usize> {
+    if r.builder != m.builder || !params_match(&r.build_params, m.params) {
+        return None;
+    }
+    if m.compact.is_some_and(|c| c != r.compact) {
+        return None;
+    }
+    let encode_extra = match (m.encoder, r.encoder.as_deref()) {
+        (None, None) => 0,
+        (Some(want), Some(have)) if want == have => {
+            let ep = r.encode_params.as_deref().unwrap_or("");
+            if !params_match(ep, m.encode_params) {
+                return None;
+            }
+            extra_params(ep, m.encode_params)
+        }
+        _ => return None,
+    };
+    Some(extra_params(&r.build_params, m.params) + encode_extra)
 }
 
 /// Compares every row that reproduces a thesis (scene, method) cell. Missing optional tables are
@@ -237,45 +320,33 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
         }
     }
 
-    let mut cost_note = false;
-    for metric in METRICS {
-        let path = dir.join(metric.file);
-        if !path.exists() {
-            rep.notes.push(format!("{} not found: {} not compared.", metric.file, metric.label));
-            continue;
-        }
-        let table = read_tsv(&path)?;
-        // Best row per (scene, abbrev): fewest parameters beyond the mapping, then first.
-        let mut best: BTreeMap<(String, &str), (usize, usize)> = BTreeMap::new();
-        let mut order: Vec<(String, &str)> = Vec::new();
+    // The thesis' numbers are for its cost constants; other constants give other trees.
+    let consts_ok = |r: &ResultRow| c_t.is_none_or(|c| c == r.c_t) && c_i.is_none_or(|c| c == r.c_i);
+    if rows.iter().any(|r| {
+        same_model(r, &scenes).is_some() && !consts_ok(r) && METHODS.iter().any(|m| row_matches(r, m).is_some())
+    }) {
+        rep.notes.push(format!(
+            "Rows with c_t/c_i other than the thesis' ({}/{}) are not compared.",
+            c_t.map_or("?".into(), |c| c.to_string()),
+            c_i.map_or("?".into(), |c| c.to_string())
+        ));
+    }
+    // Best row per (scene, abbrev): fewest parameters beyond the mapping, then first.
+    let select = |rays: Option<&str>| -> Vec<((String, &'static str), usize)> {
+        let mut best: BTreeMap<(String, &'static str), (usize, usize)> = BTreeMap::new();
+        let mut order: Vec<(String, &'static str)> = Vec::new();
         for (ri, r) in rows.iter().enumerate() {
-            if same_model(r, &scenes).is_none() {
+            if same_model(r, &scenes).is_none() || !consts_ok(r) {
                 continue;
             }
-            if let Some(kind) = metric.rays {
+            if let Some(kind) = rays {
                 if !r.rays_kind.as_deref().is_some_and(|k| k.starts_with(kind)) {
                     continue;
                 }
             }
-            // The thesis' numbers are for its cost constants; other constants give other trees.
-            let consts_ok = c_t.is_none_or(|c| c == r.c_t) && c_i.is_none_or(|c| c == r.c_i);
             for m in METHODS {
-                if r.builder != m.builder || r.compact != m.compact || !params_match(&r.build_params, m.params) {
-                    continue;
-                }
-                if !consts_ok {
-                    if !cost_note {
-                        rep.notes.push(format!(
-                            "Rows with c_t/c_i other than the thesis' ({}/{}) are not compared.",
-                            c_t.map_or("?".into(), |c| c.to_string()),
-                            c_i.map_or("?".into(), |c| c.to_string())
-                        ));
-                        cost_note = true;
-                    }
-                    continue;
-                }
+                let Some(extra) = row_matches(r, m) else { continue };
                 let key = (r.scene.clone(), m.abbrev);
-                let extra = extra_params(&r.build_params, m.params);
                 match best.get(&key) {
                     Some(&(e, _)) if e <= extra => {}
                     None => {
@@ -288,25 +359,77 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
                 }
             }
         }
-        for key in order {
-            let (_, ri) = best[&key];
+        order.into_iter().map(|k| (k.clone(), best[&k].1)).collect()
+    };
+
+    let push = |rep: &mut ReferenceReport, metric: &str, r: &ResultRow, ts: &ThesisScene, abbrev: &str, method: String, ours: f64, paper: f64| {
+        let diff_percent = if paper != 0.0 { (ours - paper) / paper * 100.0 } else { f64::NAN };
+        rep.comparisons.push(Comparison {
+            metric: metric.to_string(),
+            scene_name: r.scene_name.clone(),
+            thesis_scene: ts.short.clone(),
+            abbrev: abbrev.to_string(),
+            method,
+            ours,
+            paper,
+            diff_percent,
+        });
+    };
+
+    for metric in METRICS {
+        let path = dir.join(metric.file);
+        if !path.exists() {
+            rep.notes.push(format!("{} not found: {} not compared.", metric.file, metric.label));
+            continue;
+        }
+        let table = read_tsv(&path)?;
+        for ((_, abbrev), ri) in select(metric.rays) {
             let r = &rows[ri];
             let Some(ts) = same_model(r, &scenes) else { continue };
-            let Some(paper) = table.get(&ts.short).and_then(|row| row.get(key.1)).copied() else {
+            let Some(paper) = table.get(&ts.short).and_then(|row| row.get(abbrev)).copied() else {
                 continue;
             };
             let Some(ours) = (metric.value)(r).filter(|v| v.is_finite()) else { continue };
-            let diff_percent = if paper != 0.0 { (ours - paper) / paper * 100.0 } else { f64::NAN };
-            rep.comparisons.push(Comparison {
-                metric: metric.label.to_string(),
-                scene_name: r.scene_name.clone(),
-                thesis_scene: ts.short.clone(),
-                abbrev: key.1.to_string(),
-                method: r.method.clone(),
-                ours,
-                paper,
-                diff_percent,
-            });
+            push(&mut rep, metric.label, r, ts, abbrev, r.method.clone(), ours, paper);
+        }
+    }
+
+    // Table 25: EMC-64-var relative to the Morton row of the same builder and parameters.
+    let path = dir.join(EMC_TABLE);
+    if !path.exists() {
+        rep.notes.push(format!("{EMC_TABLE} not found: EMC-64-var ratios not compared."));
+        return Ok(rep);
+    }
+    let table = read_tsv(&path)?;
+    for ((scene, abbrev), mi) in select(None) {
+        if !EMC_METHODS.contains(&abbrev) {
+            continue;
+        }
+        let m = &rows[mi];
+        let Some(ts) = same_model(m, &scenes) else { continue };
+        let emc = rows
+            .iter()
+            .filter(|r| {
+                r.scene == scene
+                    && r.builder == m.builder
+                    && r.build_params == m.build_params
+                    && r.compact == m.compact
+                    && consts_ok(r)
+                    && r.encoder.as_deref() == Some(EMC_ENCODER)
+                    && params_match(r.encode_params.as_deref().unwrap_or(""), EMC_PARAMS)
+            })
+            .min_by_key(|r| extra_params(r.encode_params.as_deref().unwrap_or(""), EMC_PARAMS));
+        let Some(e) = emc else { continue };
+        let method = format!("{} / {}", e.method, m.method);
+        let paper_row = table.get(&ts.short);
+        let ratio = |a: f64, b: f64| if b > 0.0 && a.is_finite() && b.is_finite() { Some(100.0 * a / b) } else { None };
+        let cost = ratio(e.sah_cost, m.sah_cost);
+        let build = ratio(crate::analysis::total_build_seconds(e), crate::analysis::total_build_seconds(m));
+        for (label, col, ours) in [(EMC_COST_LABEL, "cost", cost), (EMC_BUILD_LABEL, "build", build)] {
+            let paper = paper_row.and_then(|p| p.get(&format!("{col}_{abbrev}"))).copied();
+            if let (Some(ours), Some(paper)) = (ours, paper) {
+                push(&mut rep, label, m, ts, abbrev, method.clone(), ours, paper);
+            }
         }
     }
     Ok(rep)
@@ -334,6 +457,16 @@ mod tests {
         assert!(!params_match("bins=32,leaf=2", "bins=16,leaf=2"));
         assert!(params_match("", "leaf=2"));
         assert_eq!(extra_params("bins=16,leaf=2,axis=all", "bins=16,leaf=2"), 1);
+        // Alternatives; a wanted key must be present unless the row is all defaults.
+        assert!(params_match("delta=20,epsilon=0.1", "delta=20,epsilon=0.1|preset=hq"));
+        assert!(params_match("preset=hq", "delta=20,epsilon=0.1|preset=hq"));
+        assert!(!params_match("delta=4,epsilon=0.2", "delta=20,epsilon=0.1|preset=hq"));
+        assert!(!params_match("radius=25", "radius=10"));
+        // `auto` matches the builder-resolved `auto:aac`, a number does not.
+        assert!(params_match("bits=auto:aac,bounds=scene,grid_bits=0", "bits=auto,bounds=scene,grid_bits=0"));
+        assert!(!params_match("bits=10,bounds=scene,grid_bits=0", "bits=auto,bounds=scene,grid_bits=0"));
+        assert!(!params_match("bits=auto:ploc,bounds=scene,grid_bits=9", "bits=auto,bounds=scene,grid_bits=0"));
+        assert_eq!(extra_params("delta=20,epsilon=0.1,x=1", "delta=20,epsilon=0.1|preset=hq"), 1);
     }
 
     #[test]

@@ -3,6 +3,7 @@
 pub mod bars;
 pub mod pareto;
 pub mod reference;
+pub mod sweep;
 
 use crate::fsutil::{commit, tmp_path};
 use plotters::coord::Shift;

@@ -79,12 +79,12 @@ impl Figure for ParetoFigure {
         if xmin > 0.0 && xmax / xmin > 10.0 {
             // Extra room on the right for the point labels.
             let xr = (xmin / 1.5..xmax * 4.0).log_scale();
-            self.draw_with(root, &title, xr, yr, "build + compact time [s] (log)")
+            self.draw_with(root, &title, xr, yr, "encode + build + compact time [s] (log)")
         } else {
             let xpad = if xmax > xmin { 0.1 * (xmax - xmin) } else { 0.05 * xmax.abs().max(1e-6) };
             let lo = if xmin >= 0.0 { 0.0 } else { xmin - xpad };
             let xr = lo..(xmax + 3.0 * xpad);
-            self.draw_with(root, &title, xr, yr, "build + compact time [s]")
+            self.draw_with(root, &title, xr, yr, "encode + build + compact time [s]")
         }
     }
 }
