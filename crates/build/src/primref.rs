@@ -197,7 +197,7 @@ pub(crate) fn make_refs_parallel(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimR
 /// `a_0 < a_1 < ..` the positions below `mid` holding right elements and `b_0 < b_1 < ..` the
 /// positions from `mid` on holding left elements (M of each), it swaps `a_k` with `b_{M-1-k}`.
 /// That needs only per-chunk counts and prefix sums: classify (and gather child bounds) in
-/// parallel, copy the 2M misplaced elements out, and write them back to their partners' slots.
+/// parallel, then swap the pairs in parallel blocks (see [`swap_misplaced`]).
 /// (The thesis describes a stable variant with a double-length array; reproducing the sequential
 /// builder's permutation instead keeps its trees and SAH costs unchanged and moves only the M
 /// misplaced pairs.) `flags` is scratch of the range's length; `chunk` only affects speed.
@@ -246,58 +246,7 @@ pub(crate) fn partition_parallel(
             },
         );
     let mid = n_left;
-    let flags = &*flags;
-    // Misplaced elements on each side, gathered in position order (rayon's collect keeps order).
-    let (left_part, right_part) = s.split_at_mut(mid);
-    let (left_flags, right_flags) = flags.split_at(mid);
-    let gather = |part: &[PrimRef], fl: &[bool], want: bool| -> (Vec<usize>, Vec<PrimRef>) {
-        let per_chunk: Vec<Vec<PrimRef>> = part
-            .par_chunks(chunk)
-            .zip(fl.par_chunks(chunk))
-            .map(|(ps, fs)| {
-                ps.iter()
-                    .zip(fs)
-                    .filter(|(_, &f)| f == want)
-                    .map(|(p, _)| *p)
-                    .collect()
-            })
-            .collect();
-        // Rank of each chunk's first misplaced element.
-        let mut offsets = Vec::with_capacity(per_chunk.len());
-        let mut acc = 0;
-        for c in &per_chunk {
-            offsets.push(acc);
-            acc += c.len();
-        }
-        (offsets, per_chunk.concat())
-    };
-    let ((a_off, a_vals), (b_off, b_vals)) = rayon::join(
-        || gather(left_part, left_flags, false),
-        || gather(right_part, right_flags, true),
-    );
-    let m = a_vals.len();
-    debug_assert_eq!(m, b_vals.len());
-    if m > 0 {
-        // a_k receives b_{M-1-k}; b_j receives a_{M-1-j}.
-        let scatter = |part: &mut [PrimRef], fl: &[bool], want: bool, off: &[usize], src: &[PrimRef]| {
-            part.par_chunks_mut(chunk)
-                .zip(fl.par_chunks(chunk))
-                .zip(off.par_iter())
-                .for_each(|((ps, fs), &o)| {
-                    let mut k = o;
-                    for (p, &f) in ps.iter_mut().zip(fs) {
-                        if f == want {
-                            *p = src[m - 1 - k];
-                            k += 1;
-                        }
-                    }
-                });
-        };
-        rayon::join(
-            || scatter(left_part, left_flags, false, &a_off, &b_vals),
-            || scatter(right_part, right_flags, true, &b_off, &a_vals),
-        );
-    }
+    swap_misplaced(&mut s[..], flags, mid, chunk);
     (
         Range {
             begin: r.begin,
@@ -312,4 +261,88 @@ pub(crate) fn partition_parallel(
             cbounds: rcb,
         },
     )
+}
+
+/// The swap step of [`partition_parallel`]: swaps `a_k` with `b_{M-1-k}` (see there) for all k.
+/// Each chunk of `[0, mid)` holds the misplaced ranks `[o, o + c)`; their partners are the ranks
+/// `[M - o - c, M - o)` from `mid` on, which occupy one contiguous stretch of positions. These
+/// stretches tile the right part in reverse chunk order, so both sides split into disjoint slices
+/// and every chunk swaps its pairs independently (no scratch copies, no unsafe).
+fn swap_misplaced(s: &mut [PrimRef], flags: &[bool], mid: usize, chunk: usize) {
+    use rayon::prelude::*;
+    let (lp, rp) = s.split_at_mut(mid);
+    let (lf, rf) = flags.split_at(mid);
+    let count = |f: &[bool], want: bool| f.iter().filter(|&&x| x == want).count();
+    let (lcounts, rcounts): (Vec<usize>, Vec<usize>) = rayon::join(
+        || lf.par_chunks(chunk).map(|f| count(f, false)).collect(),
+        || rf.par_chunks(chunk).map(|f| count(f, true)).collect(),
+    );
+    let m: usize = lcounts.iter().sum();
+    debug_assert_eq!(m, rcounts.iter().sum::<usize>());
+    if m == 0 {
+        return;
+    }
+    // rpre[i]: number of left-bound elements of the right part before its chunk i.
+    let mut rpre = Vec::with_capacity(rcounts.len() + 1);
+    rpre.push(0);
+    for c in &rcounts {
+        rpre.push(rpre.last().unwrap() + c);
+    }
+    // Position (in the right part) of the left-bound element of rank q; rank m is the end.
+    let position = |q: usize| -> usize {
+        if q >= m {
+            return rp.len();
+        }
+        let i = rpre.partition_point(|&x| x <= q) - 1;
+        let base = i * chunk;
+        let mut need = q - rpre[i];
+        for (j, &f) in rf[base..].iter().enumerate() {
+            if f {
+                if need == 0 {
+                    return base + j;
+                }
+                need -= 1;
+            }
+        }
+        unreachable!("rank {q} below the total {m}")
+    };
+    // Left chunk c (misplaced ranks [o, o + cnt)) pairs with right positions [start_c, end_c).
+    let mut lo = Vec::with_capacity(lcounts.len());
+    let mut acc = 0;
+    for &c in &lcounts {
+        lo.push(acc);
+        acc += c;
+    }
+    let starts: Vec<usize> = lo
+        .par_iter()
+        .zip(lcounts.par_iter())
+        .map(|(&o, &c)| position(m - o - c))
+        .collect();
+    // Carve the right part from its end: chunk 0 owns the highest ranks.
+    let mut rights: Vec<(&mut [PrimRef], &[bool])> = Vec::with_capacity(starts.len());
+    let mut rest = rp;
+    for &st in &starts {
+        let (head, tail) = std::mem::take(&mut rest).split_at_mut(st);
+        let len = tail.len();
+        rights.push((tail, &rf[st..st + len]));
+        rest = head;
+    }
+    lp.par_chunks_mut(chunk)
+        .zip(lf.par_chunks(chunk))
+        .zip(rights.into_par_iter())
+        .for_each(|((ls, lfl), (rs, rfl))| {
+            // Misplaced ascending on the left meet left-bound descending on the right (Hoare).
+            let mut j = rs.len();
+            for (i, &f) in lfl.iter().enumerate() {
+                if !f {
+                    loop {
+                        j -= 1;
+                        if rfl[j] {
+                            break;
+                        }
+                    }
+                    std::mem::swap(&mut ls[i], &mut rs[j]);
+                }
+            }
+        });
 }
