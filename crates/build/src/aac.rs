@@ -171,14 +171,14 @@ impl<'a> Input<'a> {
 
     #[inline]
     fn prim_box(&self, i: usize) -> BoxA {
-        // Clamped to +-1e38 (NaN becomes -1e38): extents stay finite, so no distance is ever NaN
-        // (inf * 0) and the hot loops need no NaN test. Only non-finite or absurd boxes change.
+        // Clamped to +-1e38 (NaN becomes -1e38) and max >= min: extents are finite and
+        // non-negative, so no distance is ever NaN (inf * 0, inf - inf) and the hot loops need no
+        // NaN test. Only non-finite, inverted or absurdly large boxes change.
         let b = &self.boxes[self.order[i] as usize];
         let lim = Vec3A::splat(1e38);
-        BoxA {
-            min: Vec3A::from(b.min).max(-lim).min(lim),
-            max: Vec3A::from(b.max).max(-lim).min(lim),
-        }
+        let min = Vec3A::from(b.min).max(-lim).min(lim);
+        let max = Vec3A::from(b.max).max(-lim).min(lim).max(min);
+        BoxA { min, max }
     }
 }
 

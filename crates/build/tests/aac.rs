@@ -166,6 +166,11 @@ fn non_finite_boxes_do_not_panic() {
         bvhlab_bvh::Vec3::splat(f32::MAX),
     );
     boxes[70] = Aabb::EMPTY;
+    // Inverted on one axis with huge coordinates: -inf + inf in the area unless sanitized.
+    boxes[80] = Aabb::new(
+        bvhlab_bvh::Vec3::new(3e38, -3e38, -3e38),
+        bvhlab_bvh::Vec3::new(-3e38, 3e38, 3e38),
+    );
     let codes: Vec<u64> = (0..boxes.len() as u64).map(|i| i / 7).collect();
     let order: Vec<u32> = (0..boxes.len() as u32).collect();
     for cfg in CONFIGS {
