@@ -99,8 +99,9 @@ fn area_scale(boxes: &[Aabb]) -> f32 {
     if m <= 4294967296.0 {
         return 1.0;
     }
-    let e = m.log2().ceil() as i32; // m <= 2^e, e <= 128
-                                    // 2^-126 is the smallest normal power of two; it leaves |x| <= 4, still far from overflow.
+    // m <= 2^e, e <= 128. 2^-126 is the smallest normal power of two; it leaves |x| <= 4, still
+    // far from overflow.
+    let e = m.log2().ceil() as i32;
     2f32.powi(-(e.min(126)))
 }
 
@@ -222,8 +223,12 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
                 debug_assert_eq!((w, m), (len, mlen));
             });
         // Mutual pairs always exist (the pair minimizing (distance, lower index, higher index) over
-        // all candidate pairs is one), so every iteration makes progress.
-        debug_assert!(merge_at > merged);
+        // all candidate pairs is one), so every iteration makes progress. Checked in release too:
+        // a broken invariant must not become an endless loop.
+        assert!(
+            merge_at > merged,
+            "ploc: an iteration without a mutual pair"
+        );
         merged = merge_at;
         c = keep_at;
         std::mem::swap(&mut cur, &mut next);
