@@ -23,6 +23,11 @@ pub fn build(boxes: &[Aabb], sorted: &SortedCodes) -> Bvh {
     if n == 0 {
         return Bvh::default();
     }
+    // Karras' construction is only a tree over sorted keys.
+    debug_assert!(
+        sorted.codes.windows(2).all(|w| w[0] <= w[1]),
+        "lbvh: codes not sorted"
+    );
     let children = radix_tree(sorted.codes);
     // Leaf i is the i-th key (primitive order[i]); internal node i has id n + i; the root is
     // internal node 0 (Karras 2012 section 3), or leaf 0 when there is only one primitive.
