@@ -232,8 +232,8 @@ struct Clusters {
     dm_len: usize,
     /// Merge `j` creates cluster `n + j` from its two children (lower position first).
     merges: Vec<[u32; 2]>,
-    /// Scratch: the new cluster's distances during a merge.
-    tmp: Vec<f32>,
+    /// Scratch: clusters whose nearest neighbour was merged away.
+    stale: Vec<u32>,
 }
 
 /// Offers `(j, d)` as nearest neighbour of `k`: keeps the minimum of (distance, position), which does
@@ -278,7 +278,7 @@ impl Clusters {
             dm: Vec::new(),
             dm_len: 0,
             merges: Vec::new(),
-            tmp: Vec::new(),
+            stale: Vec::new(),
         }
     }
 
@@ -399,7 +399,7 @@ impl Clusters {
             nd,
             dm,
             merges,
-            tmp,
+            stale,
             ..
         } = self;
         let (bx, id, nn, nd) = (
@@ -409,9 +409,6 @@ impl Clusters {
             &mut nd[set.s..],
         );
         let dm = &mut dm[set.m..];
-        if tmp.len() < e {
-            tmp.resize(e, 0.0);
-        }
         while e > target {
             // The pair: the cluster with the smallest nearest distance (lowest position on ties).
             let (mut a, mut best) = (0, nd[0]);
@@ -447,42 +444,31 @@ impl Clusters {
                 }
             }
             e = last;
-            // The new cluster's distances (never into row `last`) and nearest neighbour: row p, then
-            // column p.
+            // One pass: the new cluster's distances (row p, then column p; never into row `last`)
+            // and nearest neighbour, and every other cluster's neighbour kept up to date.
             let bp = bx[p];
             let (mut bn, mut bd) = (NONE, f32::INFINITY);
-            let rp = row0(p);
-            for (k, ((bk, slot), t)) in bx[..p]
-                .iter()
-                .zip(&mut dm[rp..rp + p])
-                .zip(tmp.iter_mut())
-                .enumerate()
-            {
-                let d = dist(&bp, bk);
-                (*slot, *t) = (d, d);
-                if d < bd || bn == NONE {
-                    (bn, bd) = (k as u32, d);
-                }
-            }
-            let mut at = row0(p + 1) + p;
-            for k in p + 1..e {
-                let d = dist(&bp, &bx[k]);
-                (dm[at], tmp[k]) = (d, d);
-                at += k;
-                if d < bd || bn == NONE {
-                    (bn, bd) = (k as u32, d);
-                }
-            }
-            nn[p] = bn;
-            nd[p] = bd;
+            let (rp, mut col) = (row0(p), row0(p + 1) + p);
+            stale.clear();
             for k in 0..e {
                 if k == p {
                     continue;
                 }
+                let d = dist(&bp, &bx[k]);
+                if k < p {
+                    dm[rp + k] = d;
+                } else {
+                    dm[col] = d;
+                    col += k;
+                }
+                if d < bd || bn == NONE {
+                    (bn, bd) = (k as u32, d);
+                }
                 let t = nn[k] as usize;
                 if t == p || t == q {
-                    // Its neighbour was merged (q, if moved, now holds another cluster).
-                    (nn[k], nd[k]) = rescan(dm, k, e);
+                    // Its neighbour was merged (q, if moved, now holds another cluster): rescan
+                    // once the new cluster's distances are all in.
+                    stale.push(k as u32);
                     continue;
                 }
                 if t == last {
@@ -490,10 +476,16 @@ impl Clusters {
                 }
                 // Keep the lowest-position tie-break exact: the new cluster and the moved one may
                 // tie with the current neighbour (they cannot be strictly nearer).
-                offer(nn, nd, k, p, tmp[k]);
+                offer(nn, nd, k, p, d);
                 if moved && k != q {
                     offer(nn, nd, k, q, dm[rl + k]);
                 }
+            }
+            nn[p] = bn;
+            nd[p] = bd;
+            for &k in stale.iter() {
+                let k = k as usize;
+                (nn[k], nd[k]) = rescan(dm, k, e);
             }
         }
         let e = set.s + e;
