@@ -346,3 +346,21 @@ fn top_down_reference_rows_still_match() {
     let rep = reference::compare(dir, &[fsw]).unwrap();
     assert!(rep.comparisons.is_empty());
 }
+
+#[test]
+fn pareto_uses_focus_cost_with_a_focus_box() {
+    let mut a = coded("gen:outlier:e=20", "ploc", "radius=10", "morton", PLAIN);
+    a.sah_cost = 1e6;
+    a.focus_sah_cost = Some(120.0);
+    let mut b = base("gen:outlier:e=20", "binned-sah", "bins=16");
+    b.sah_cost = 2e6;
+    b.focus_sah_cost = Some(80.0);
+    let tmp = tempfile::tempdir().unwrap();
+    let html = std::fs::read_to_string(write_report(tmp.path(), "p", &[a, b], None).unwrap()).unwrap();
+    assert!(html.contains("build time vs focus SAH cost"), "{html}");
+    let svg = std::fs::read_to_string(tmp.path().join("plots/pareto_outlier_e_20.svg")).unwrap();
+    assert!(svg.contains("focus SAH cost"));
+    // The SAH bars get a second panel with the focus cost.
+    let bars = std::fs::read_to_string(tmp.path().join("plots/sah_outlier_e_20.svg")).unwrap();
+    assert!(bars.contains("focus box: object subtree"));
+}

@@ -43,6 +43,8 @@ pub struct ParetoPoint {
 
 pub struct ParetoFigure {
     pub scene: String,
+    /// What the y axis is: `SAH cost`, or `focus SAH cost` for scenes with a focus box.
+    pub cost_label: String,
     pub points: Vec<ParetoPoint>,
 }
 
@@ -60,7 +62,7 @@ impl Figure for ParetoFigure {
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
         let pts = self.finite();
-        let title = format!("{}: build time vs SAH cost", self.scene);
+        let title = format!("{}: build time vs {}", self.scene, self.cost_label);
         if pts.is_empty() {
             root.draw(&Text::new(
                 format!("{title}: no finite (time, cost) points"),
@@ -114,7 +116,7 @@ impl ParetoFigure {
         chart
             .configure_mesh()
             .x_desc(xdesc)
-            .y_desc("SAH cost")
+            .y_desc(self.cost_label.as_str())
             .x_label_formatter(&|v| fmt_num(*v))
             .y_label_formatter(&|v| fmt_num(*v))
             .draw()
