@@ -10,7 +10,7 @@ use crate::error::{Error, Result};
 use bvhlab_build::aac::AacConfig;
 use bvhlab_build::{SortedCodes, TopDownConfig};
 use bvhlab_bvh::{Aabb, Bvh, CostParams, Vec3};
-use bvhlab_morton::{AutoFor, Bits, BoundsMode, EncodeConfig, Scheme};
+use bvhlab_morton::{AutoFor, Bits, BoundsMode, CellFrame, EncodeConfig, Scheme};
 use std::collections::BTreeMap;
 
 #[derive(Clone, Copy, Debug)]
@@ -76,6 +76,9 @@ pub struct ResolvedEncoder {
     /// each builder's paper picks its own code length.
     pub params: BTreeMap<String, String>,
     pub config: EncodeConfig,
+    /// Occupation grid's in-cell frame (`grid_frame`): the cell (Riemersma 3.2.2) or, as bvhlab's
+    /// extension, the tight centroid bounds inside the cell.
+    pub cell_frame: CellFrame,
 }
 
 impl Registry {
@@ -111,7 +114,8 @@ impl Registry {
         let mut parts = vec![e.encoder.clone()];
         if let Ok(info) = self.encoder(&e.encoder) {
             for spec in &info.params {
-                let v = e.params.get(spec.name).cloned().unwrap_or_default();
+                // Parameters dropped as meaningless (grid_frame without a grid) are not shown.
+                let Some(v) = e.params.get(spec.name).cloned() else { continue };
                 let is_default = v == spec.default || (spec.default == "auto" && v.starts_with("auto"));
                 if spec.in_label || !is_default {
                     parts.push(format!("{}={v}", spec.name));
@@ -198,6 +202,15 @@ const GRID_BITS: ParamSpec = ParamSpec {
     default: "0",
     kind: Kind::Choice(&["0", "6", "9", "12"]),
     about: "occupation grid bits (Riemersma 3.2.2; 0 = off)",
+    in_label: false,
+};
+
+const GRID_FRAME: ParamSpec = ParamSpec {
+    name: "grid_frame",
+    default: "cell",
+    kind: Kind::Choice(&["cell", "tight"]),
+    about: "with grid_bits > 0: the in-cell code quantizes the grid cell (cell, Riemersma 3.2.2) or the \
+            bounds of the centroids inside it (tight; bvhlab's extension, not in the papers)",
     in_label: false,
 };
 
@@ -435,19 +448,20 @@ impl Registry {
                     },
                     BOUNDS,
                     GRID_BITS,
+                    GRID_FRAME,
                 ],
             },
             EncoderInfo {
                 name: "emc64-sort",
                 about: "Extended Morton code, 64 bits, size bit every 4th bit, axes by extent (Vinkler 2017; thesis 3.7.1)",
                 scheme: Scheme::Emc64Sort,
-                params: vec![BOUNDS, GRID_BITS],
+                params: vec![BOUNDS, GRID_BITS, GRID_FRAME],
             },
             EncoderInfo {
                 name: "emc64-var",
                 about: "Extended Morton code, 64 bits, size bit every 7th bit, others on the largest axis (thesis 3.7.1)",
                 scheme: Scheme::Emc64Var,
-                params: vec![BOUNDS, GRID_BITS],
+                params: vec![BOUNDS, GRID_BITS, GRID_FRAME],
             },
         ]
     }
@@ -538,6 +552,16 @@ impl Registry {
             })?;
             params.insert(spec.name.to_string(), v);
         }
+        // grid_frame only means something with a grid: keep it out of the key (and the row's
+        // encode_params) otherwise, so grid-less encodings keep one canonical spelling.
+        if params.get("grid_bits").map(String::as_str) == Some("0") {
+            if params.get("grid_frame").map(String::as_str) == Some("tight") {
+                return Err(Error::input(format!(
+                    "`grid_frame=tight` of encoder `{encoder}` needs an occupation grid: set grid_bits to 6, 9 or 12"
+                )));
+            }
+            params.remove("grid_frame");
+        }
         let bits = match params.get("bits").map(String::as_str) {
             // EMC codes have no bits parameter (always 64 bits); the field is not read for them,
             // and a constant keeps the config (and so the output) independent of the builder.
@@ -552,7 +576,11 @@ impl Registry {
         };
         let grid_bits = params.get("grid_bits").and_then(|g| g.parse().ok()).unwrap_or(0);
         let config = EncodeConfig { scheme: info.scheme, bits, bounds, grid_bits };
-        Ok(ResolvedEncoder { encoder: encoder.to_string(), params, config })
+        let cell_frame = match params.get("grid_frame").map(String::as_str) {
+            Some("tight") => CellFrame::Tight,
+            _ => CellFrame::Lattice,
+        };
+        Ok(ResolvedEncoder { encoder: encoder.to_string(), params, config, cell_frame })
     }
 
     /// Resolves one chain's builder and (for code-using builders) encoder; `raw` holds the
@@ -679,6 +707,15 @@ mod tests {
         let e = e.unwrap();
         assert_eq!((e.config.bits, e.config.grid_bits), (Bits::Fixed(10), 9));
         assert_eq!(r.encoder_label(&e), "morton bits=10 grid_bits=9");
+        assert_eq!(e.cell_frame, CellFrame::Lattice);
+        let (_, t) = r
+            .resolve_chain("lbvh", Some("emc64-var"), &raw(&[("grid_bits", "9"), ("grid_frame", "tight")]), c)
+            .unwrap();
+        let t = t.unwrap();
+        assert_eq!((t.cell_frame, r.encoder_label(&t).as_str()), (CellFrame::Tight, "emc64-var grid_bits=9 grid_frame=tight"));
+        assert_eq!(crate::key::params_string(&t.params), "bounds=scene,grid_bits=9,grid_frame=tight");
+        let err = r.resolve_chain("lbvh", Some("morton"), &raw(&[("grid_frame", "tight")]), c).unwrap_err();
+        assert!(err.message().contains("grid_bits") && err.exit_code() == 2, "{err}");
         // EMC encoders have no bits; their key does not depend on the builder.
         let (_, a) = r.resolve_chain("aac", Some("emc64-var"), &raw(&[]), c).unwrap();
         let (_, p) = r.resolve_chain("ploc", Some("emc64-var"), &raw(&[]), c).unwrap();

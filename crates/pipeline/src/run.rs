@@ -343,7 +343,7 @@ impl Runner {
         for run in 0..plan.spec.repeat {
             // Only encode() is timed (codes + sort); boxes and centres are shared preparation.
             let t = Instant::now();
-            let e = (self.ops.encode)(&boxes, &centers, &enc.config);
+            let e = (self.ops.encode)(&boxes, &centers, &enc.config, enc.cell_frame);
             seconds.push(secs(t));
             match &first {
                 None => first = Some(e),

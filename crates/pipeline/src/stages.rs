@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 pub const LOAD_VERSION: u32 = 1;
-pub const ENCODE_VERSION: u32 = 1;
+pub const ENCODE_VERSION: u32 = 2;
 /// 2: bottom-up builders (lbvh, aac, ploc) and the reworked (parallel) binned SAH.
 pub const BUILD_VERSION: u32 = 2;
 pub const COMPACT_VERSION: u32 = 1;
@@ -55,7 +55,8 @@ pub struct Ops {
     pub metrics: fn(&Bvh, CostParams) -> Metrics,
     pub validate: fn(&Bvh, &[Aabb]) -> Result<(), String>,
     pub collapse: fn(&Bvh, CostParams) -> Bvh,
-    pub encode: fn(&[Aabb], &[bvhlab_geom::Vec3], &EncodeConfig) -> Encoding,
+    /// `bvhlab_morton::encode_cells`: the config plus the occupation grid's in-cell frame.
+    pub encode: fn(&[Aabb], &[bvhlab_geom::Vec3], &EncodeConfig, bvhlab_morton::CellFrame) -> Encoding,
 }
 
 impl Default for Ops {
@@ -66,7 +67,7 @@ impl Default for Ops {
             metrics: bvhlab_bvh::metrics,
             validate: bvhlab_bvh::validate,
             collapse: bvhlab_bvh::collapse::collapse,
-            encode: bvhlab_morton::encode,
+            encode: bvhlab_morton::encode_cells,
         }
     }
 }

@@ -51,7 +51,7 @@ fn test_build(boxes: &[Aabb], centers: &[Vec3], r: &Resolved) -> Bvh {
 }
 
 /// Codes = quantized centroid x (bits per the config; EMC: 21), sorted, ties by index.
-fn test_encode(boxes: &[Aabb], centers: &[Vec3], cfg: &EncodeConfig) -> Encoding {
+fn test_encode(boxes: &[Aabb], centers: &[Vec3], cfg: &EncodeConfig, _frame: bvhlab_morton::CellFrame) -> Encoding {
     let bits = match (cfg.scheme, cfg.bits) {
         (Scheme::Morton, Bits::Fixed(b)) => b,
         (Scheme::Morton, Bits::Auto(AutoFor::Ploc)) => 20,
