@@ -17,7 +17,9 @@
 use bvhlab_build::aac::AacConfig;
 use bvhlab_build::binned_sah::CentroidTermination;
 use bvhlab_build::ploc::PlocConfig;
-use bvhlab_build::{aac, binned_sah, lbvh, ploc, spatial_median, sweep_sah, SortedCodes, TopDownConfig};
+use bvhlab_build::{
+    aac, binned_sah, lbvh, ploc, spatial_median, sweep_sah, SortedCodes, TopDownConfig,
+};
 use bvhlab_bvh::{collapse::collapse, metrics, validate, Aabb, Bvh, CostParams, Vec3};
 use bvhlab_morton::{AutoFor, Bits, EncodeConfig};
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -115,9 +117,11 @@ fn run(name: &str, boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> (Bv
 
 /// 64-bit FNV-1a of the canonical bytes: enough to tell identical trees apart in a benchmark log.
 fn fnv(bvh: &Bvh) -> u64 {
-    bvh.canonical_bytes().iter().fold(0xcbf29ce484222325, |h, &b| {
-        (h ^ b as u64).wrapping_mul(0x100000001b3)
-    })
+    bvh.canonical_bytes()
+        .iter()
+        .fold(0xcbf29ce484222325, |h, &b| {
+            (h ^ b as u64).wrapping_mul(0x100000001b3)
+        })
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -196,7 +200,10 @@ fn main() {
             println!("{{{head},\"error\":{:?}}}", format!("panicked: {msg}"));
             continue;
         }
-        let mut total: Vec<f64> = parts.iter().map(|p| p.encode + p.build + p.collapse).collect();
+        let mut total: Vec<f64> = parts
+            .iter()
+            .map(|p| p.encode + p.build + p.collapse)
+            .collect();
         let mut enc: Vec<f64> = parts.iter().map(|p| p.encode).collect();
         let mut bld: Vec<f64> = parts.iter().map(|p| p.build).collect();
         let mut col: Vec<f64> = parts.iter().map(|p| p.collapse).collect();

@@ -3,7 +3,9 @@
 //! sweeps over the bins, the original SAH leaf-vs-split test (eq. 2 and 3), in-place partition,
 //! iteration with an explicit stack.
 use crate::boxa::BoxA;
-use crate::primref::{make_refs, make_refs_parallel, object_median, partition, partition_parallel, PrimRef};
+use crate::primref::{
+    make_refs, make_refs_parallel, object_median, partition, partition_parallel, PrimRef,
+};
 use crate::topdown::{build_nodes, build_nodes_parallel, Range};
 use crate::TopDownConfig;
 use bvhlab_bvh::{Aabb, Bvh, Node, Vec3};

@@ -173,13 +173,10 @@ pub(crate) fn make_refs_parallel(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimR
             idx: i as u32,
         })
         .collect();
-    let (bounds, cbounds) = refs
-        .par_chunks(1 << 14)
-        .map(bounds_of)
-        .reduce(
-            || (BoxA::EMPTY, BoxA::EMPTY),
-            |a, b| (a.0.union(&b.0), a.1.union(&b.1)),
-        );
+    let (bounds, cbounds) = refs.par_chunks(1 << 14).map(bounds_of).reduce(
+        || (BoxA::EMPTY, BoxA::EMPTY),
+        |a, b| (a.0.union(&b.0), a.1.union(&b.1)),
+    );
     let root = Range {
         begin: 0,
         end: refs.len(),

@@ -66,8 +66,15 @@ pub(crate) fn build_nodes(
 /// like the final layout), a leaf, or a subtree handed to the vertical phase.
 #[derive(Clone, Copy)]
 enum Skel {
-    Inner { bounds: BoxA, left: usize },
-    Leaf { bounds: BoxA, begin: usize, count: usize },
+    Inner {
+        bounds: BoxA,
+        left: usize,
+    },
+    Leaf {
+        bounds: BoxA,
+        begin: usize,
+        count: usize,
+    },
     Task(usize),
 }
 
@@ -154,10 +161,7 @@ where
         };
         jobs.push((mine, local));
     }
-    let subtrees: Vec<Vec<Node>> = jobs
-        .into_par_iter()
-        .map(|(s, r)| vertical(s, &r))
-        .collect();
+    let subtrees: Vec<Vec<Node>> = jobs.into_par_iter().map(|(s, r)| vertical(s, &r)).collect();
 
     // Replay the sequential allocation order: an inner node allocates its child pair when it is
     // popped, a task's subtree allocates its `len - 1` descendants as one block at that moment.

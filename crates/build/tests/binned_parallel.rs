@@ -87,7 +87,8 @@ fn parallel_binned_is_byte_identical_to_sequential() {
             };
             for bins in [2, 16, 33] {
                 for term in [CentroidTermination::SplitAxis, CentroidTermination::AnyAxis] {
-                    let seq = binned_sah::build_with_termination(&boxes, &centers, bins, &cfg, term);
+                    let seq =
+                        binned_sah::build_with_termination(&boxes, &centers, bins, &cfg, term);
                     if let Err(e) = validate(&seq, &boxes) {
                         panic!("sequential on {scene}: {e}");
                     }
@@ -134,8 +135,8 @@ fn default_knobs_on_a_larger_scene() {
             threads == 1 || tuning.vertical_min < boxes.len(),
             "the root must be split horizontally"
         );
-        let par = pool(threads)
-            .install(|| binned_sah::build_parallel(&boxes, &centers, 16, &cfg, term));
+        let par =
+            pool(threads).install(|| binned_sah::build_parallel(&boxes, &centers, 16, &cfg, term));
         assert!(
             par.canonical_bytes() == seq.canonical_bytes(),
             "threads {threads}"
@@ -191,7 +192,10 @@ fn parallel_binned_terminates_on_non_finite_boxes() {
             });
             let mut ids = bvh.prim_indices.clone();
             ids.sort_unstable();
-            assert!(ids.iter().copied().eq(0..400u32), "{t:?}: not a permutation");
+            assert!(
+                ids.iter().copied().eq(0..400u32),
+                "{t:?}: not a permutation"
+            );
         }
     }
 }
