@@ -157,6 +157,23 @@ fn drop_table(h: &mut String, sw: &Sweep, metric: &str, d: f64, drops: &[Drop]) 
         h.push_str("<p>No method with an encode stage in this sweep.</p>\n");
         return;
     }
+    // Measured drops are sampled values: the true onset lies after the previous sample.
+    let step = sw.points.windows(2).map(|w| w[1].0 - w[0].0).fold(f64::INFINITY, f64::min);
+    if step.is_finite() {
+        let _ = writeln!(
+            h,
+            "<p>{} is sampled in steps of {}: a measured drop at {} = x means the cost first exceeds \
+             {:.0}% above its value at {} = {} somewhere in (x &minus; {}, x], so measured and predicted \
+             drops agree when they differ by less than one step.</p>",
+            escape(&sw.param),
+            fmt_num(step),
+            escape(&sw.param),
+            DROP_THRESHOLD * 100.0,
+            escape(&sw.param),
+            fmt_num(sw.points[0].0),
+            fmt_num(step)
+        );
+    }
     h.push_str(
         "<table><tr><th>builder</th><th>method</th><th>grid bits</th><th>measured drop</th>\
          <th>same code without grid</th><th>its measured drop e_drop</th><th>move_d = grid_bits/d</th>\

@@ -215,21 +215,28 @@ where
             .map_err(err)?;
     }
 
+    // Methods often coincide (concise bounds = scene bounds for a tiny outlier): earlier curves are
+    // wider, so a later one drawn on top leaves them visible; marker shapes differ too.
+    let mut k = 0usize;
     for c in &panel.curves {
         let col = curve_color(c);
         let pts: Vec<(f64, f64)> = c.points.iter().copied().filter(|p| p.0.is_finite() && p.1.is_finite()).collect();
         if c.reference {
-            chart
-                .draw_series(DashedLineSeries::new(pts.clone(), 6, 4, col.stroke_width(2)))
-                .map_err(err)?;
-        } else {
-            chart
-                .draw_series(LineSeries::new(pts.clone(), col.stroke_width(2)))
-                .map_err(err)?;
-            chart
-                .draw_series(pts.iter().map(|&p| Circle::new(p, 3, col.filled())))
-                .map_err(err)?;
+            chart.draw_series(DashedLineSeries::new(pts, 6, 4, col.stroke_width(2))).map_err(err)?;
+            continue;
         }
+        let width = 4u32.saturating_sub(k.min(2) as u32);
+        chart.draw_series(LineSeries::new(pts.clone(), col.stroke_width(width))).map_err(err)?;
+        match k % 4 {
+            0 => chart.draw_series(pts.iter().map(|&p| Circle::new(p, 4, col.filled()))).map(|_| ()),
+            1 => chart.draw_series(pts.iter().map(|&p| TriangleMarker::new(p, 5, col.filled()))).map(|_| ()),
+            2 => chart.draw_series(pts.iter().map(|&p| Cross::new(p, 4, col.stroke_width(2)))).map(|_| ()),
+            _ => chart
+                .draw_series(pts.iter().map(|&p| EmptyElement::at(p) + Rectangle::new([(-3, -3), (3, 3)], col.filled())))
+                .map(|_| ()),
+        }
+        .map_err(err)?;
+        k += 1;
     }
     // Legend below the chart (not over the data or the marker labels): curves, then marker kinds.
     let mut entries: Vec<(String, RGBColor, u8)> =
