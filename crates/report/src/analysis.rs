@@ -39,8 +39,8 @@ pub fn parse_params(s: &str) -> BTreeMap<String, String> {
 }
 
 /// Encoder parameters at their defaults are left out of curve labels (the registry's defaults:
-/// bounds=scene, grid_bits=0; `bits=auto:<builder>` is the builder's own choice).
-const ENCODER_DEFAULTS: &[(&str, &str)] = &[("bounds", "scene"), ("grid_bits", "0")];
+/// bounds=scene, grid_bits=0, grid_frame=cell; `bits=auto:<builder>` is the builder's own choice).
+const ENCODER_DEFAULTS: &[(&str, &str)] = &[("bounds", "scene"), ("grid_bits", "0"), ("grid_frame", "cell")];
 
 /// Short label of a row's encoder variant: `morton bits=10 grid_bits=9`, `emc64-var`; `None` for
 /// rows without an encode stage.
@@ -380,12 +380,14 @@ pub struct Drop {
     pub predicted: Option<f64>,
 }
 
-/// Encode-params key with grid_bits set to 0: the grid method's reference code.
+/// Method key with grid_bits set to 0 and the other grid parameters (`grid_frame`, which only
+/// exists with a grid) removed: the grid method's reference code.
 fn without_grid(key: &str) -> String {
     let mut parts: Vec<String> = key.split('|').map(str::to_string).collect();
     if parts.len() == 5 {
         let p: Vec<String> = parts[3]
             .split(',')
+            .filter(|kv| kv.starts_with("grid_bits=") || !kv.starts_with("grid_"))
             .map(|kv| if kv.starts_with("grid_bits=") { "grid_bits=0".to_string() } else { kv.to_string() })
             .collect();
         parts[3] = p.join(",");
@@ -445,6 +447,11 @@ mod tests {
         assert_eq!(
             without_grid("ploc|radius=10|morton|bits=10,bounds=scene,grid_bits=9|none"),
             "ploc|radius=10|morton|bits=10,bounds=scene,grid_bits=0|none"
+        );
+        // grid_frame exists only with a grid (the registry drops it at grid_bits=0).
+        assert_eq!(
+            without_grid("aac|delta=4,epsilon=0.2|emc64-var|bounds=scene,grid_bits=9,grid_frame=tight|none"),
+            "aac|delta=4,epsilon=0.2|emc64-var|bounds=scene,grid_bits=0|none"
         );
     }
 }

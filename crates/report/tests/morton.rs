@@ -39,9 +39,9 @@ fn coded(scene: &str, builder: &str, params: &str, encoder: &str, eparams: &str)
 }
 
 const PLAIN: &str = "bits=10,bounds=scene,grid_bits=0";
-const GRID9: &str = "bits=10,bounds=scene,grid_bits=9";
+const GRID9: &str = "bits=10,bounds=scene,grid_bits=9,grid_frame=cell";
 const EMC: &str = "bounds=scene,grid_bits=0";
-const EMC9: &str = "bounds=scene,grid_bits=9";
+const EMC9: &str = "bounds=scene,grid_bits=9,grid_frame=cell";
 
 /// Focus cost of a method at e: 100 up to (excluding) its drop, then 100 * 2^(e - drop + 1).
 fn cost_at(e: u32, drop: Option<u32>) -> f64 {
