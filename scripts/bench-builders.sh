@@ -120,10 +120,14 @@ med_d2=$(embree_part "$emb_d2" medium_binned_sah)
 echo
 echo "stanford_dragon, 1 and 2 threads (embree_bin = Embree binned SAH at 2 threads):"
 table "$d1"$'\n'"$d2" "$(field "$med_d2" build_ms_median)" "$(field "$med_d2" sah_cost)"
+low_d2=$(embree_part "$emb_d2" low_morton)
+echo "Embree 2 threads: binned SAH $(field "$med_d2" build_ms_median) ms (SAH $(field "$med_d2" sah_cost)), Morton $(field "$low_d2" build_ms_median) ms (SAH $(field "$low_d2" sah_cost))"
 med_c1=$(embree_part "$emb_c1" medium_binned_sah)
 echo
 echo "conference, 1 thread (embree_bin = Embree binned SAH at 1 thread):"
 table "$c1" "$(field "$med_c1" build_ms_median)" "$(field "$med_c1" sah_cost)"
+low_c1=$(embree_part "$emb_c1" low_morton)
+echo "Embree 1 thread: binned SAH $(field "$med_c1" build_ms_median) ms (SAH $(field "$med_c1" sah_cost)), Morton $(field "$low_c1" build_ms_median) ms (SAH $(field "$low_c1" sah_cost))"
 
 # verdict NAME VALUE OP LIMIT: PASS when VALUE OP LIMIT holds, MISS otherwise, n/a without a value.
 verdict() {
