@@ -74,34 +74,64 @@ impl Figure for ParetoFigure {
         }
         let (xmin, xmax) = min_max(pts.iter().map(|p| p.seconds));
         let (ymin, ymax) = min_max(pts.iter().map(|p| p.sah_cost));
-        let ypad = if ymax > ymin { 0.08 * (ymax - ymin) } else { 0.05 * ymax.abs().max(1.0) };
-        let yr = (ymin - ypad)..(ymax + ypad);
-        // Log x when the times span more than a decade (and are all positive), so that fast
-        // builders are not squashed against the axis.
-        if xmin > 0.0 && xmax / xmin > 10.0 {
-            // Extra room on the right for the point labels.
-            let xr = (xmin / 1.5..xmax * 4.0).log_scale();
-            self.draw_with(root, &title, xr, yr, "encode + build + compact time [s] (log)")
+        // Log y when the costs span more than a factor 20 (a method that failed on a far outlier
+        // would squash every other point onto one line).
+        if ymin > 0.0 && ymax / ymin > 20.0 {
+            let yr = (ymin / 1.3..ymax * 1.5).log_scale();
+            let ydesc = format!("{} (log)", self.cost_label);
+            self.draw_x(root, &title, yr, &ydesc, xmin, xmax)
         } else {
-            let xpad = if xmax > xmin { 0.1 * (xmax - xmin) } else { 0.05 * xmax.abs().max(1e-6) };
-            let lo = if xmin >= 0.0 { 0.0 } else { xmin - xpad };
-            let xr = lo..(xmax + 3.0 * xpad);
-            self.draw_with(root, &title, xr, yr, "encode + build + compact time [s]")
+            let ypad = if ymax > ymin { 0.08 * (ymax - ymin) } else { 0.05 * ymax.abs().max(1.0) };
+            let yr = (ymin - ypad)..(ymax + ypad);
+            self.draw_x(root, &title, yr, &self.cost_label, xmin, xmax)
         }
     }
 }
 
 impl ParetoFigure {
-    fn draw_with<DB, X>(
+    /// Picks the x axis: log when the times span more than a decade (and are all positive), so
+    /// that fast builders are not squashed against the axis.
+    fn draw_x<DB, Y>(
+        &self,
+        root: &DrawingArea<DB, Shift>,
+        title: &str,
+        yr: Y,
+        ydesc: &str,
+        xmin: f64,
+        xmax: f64,
+    ) -> Result<(), String>
+    where
+        DB: DrawingBackend,
+        Y: AsRangedCoord<Value = f64>,
+        Y::CoordDescType: ValueFormatter<f64>,
+    {
+        if xmin > 0.0 && xmax / xmin > 10.0 {
+            // Extra room on the right for the point labels.
+            let xr = (xmin / 1.5..xmax * 4.0).log_scale();
+            self.draw_with(root, title, xr, yr, "encode + build + compact time [s] (log)", ydesc)
+        } else {
+            let xpad = if xmax > xmin { 0.1 * (xmax - xmin) } else { 0.05 * xmax.abs().max(1e-6) };
+            let lo = if xmin >= 0.0 { 0.0 } else { xmin - xpad };
+            let xr = lo..(xmax + 3.0 * xpad);
+            self.draw_with(root, title, xr, yr, "encode + build + compact time [s]", ydesc)
+        }
+    }
+}
+
+impl ParetoFigure {
+    fn draw_with<DB, X, Y>(
         &self,
         root: &DrawingArea<DB, Shift>,
         title: &str,
         xr: X,
-        yr: std::ops::Range<f64>,
+        yr: Y,
         xdesc: &str,
+        ydesc: &str,
     ) -> Result<(), String>
     where
         DB: DrawingBackend,
+        Y: AsRangedCoord<Value = f64>,
+        Y::CoordDescType: ValueFormatter<f64>,
         X: AsRangedCoord<Value = f64>,
         X::CoordDescType: ValueFormatter<f64>,
     {
@@ -116,7 +146,7 @@ impl ParetoFigure {
         chart
             .configure_mesh()
             .x_desc(xdesc)
-            .y_desc(self.cost_label.as_str())
+            .y_desc(ydesc)
             .x_label_formatter(&|v| fmt_num(*v))
             .y_label_formatter(&|v| fmt_num(*v))
             .draw()
