@@ -40,7 +40,11 @@ pub fn parse_params(s: &str) -> BTreeMap<String, String> {
 
 /// Encoder parameters at their defaults are left out of curve labels (the registry's defaults:
 /// bounds=scene, grid_bits=0, grid_frame=cell; `bits=auto:<builder>` is the builder's own choice).
-const ENCODER_DEFAULTS: &[(&str, &str)] = &[("bounds", "scene"), ("grid_bits", "0"), ("grid_frame", "cell")];
+const ENCODER_DEFAULTS: &[(&str, &str)] = &[
+    ("bounds", "scene"),
+    ("grid_bits", "0"),
+    ("grid_frame", "cell"),
+];
 
 /// Short label of a row's encoder variant: `morton bits=10 grid_bits=9`, `emc64-var`; `None` for
 /// rows without an encode stage.
@@ -79,7 +83,15 @@ pub fn method_labels(rows: &[ResultRow]) -> Vec<(String, String)> {
     for (k, l) in out.iter_mut() {
         if labels.iter().filter(|x| *x == l).count() > 1 {
             let parts: Vec<&str> = k.split('|').collect();
-            *l = format!("{l} [{}]", parts.iter().filter(|p| !p.is_empty()).cloned().collect::<Vec<_>>().join(" "));
+            *l = format!(
+                "{l} [{}]",
+                parts
+                    .iter()
+                    .filter(|p| !p.is_empty())
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            );
         }
     }
     out
@@ -105,7 +117,10 @@ pub struct Flag {
 /// The value flags and the best-per-scene comparison use: the focus cost when the scene has one
 /// (with a far outlier the whole-scene cost says little about the object), else the SAH cost.
 fn flag_metric(scene_rows: &[&ResultRow]) -> (&'static str, fn(&ResultRow) -> Option<f64>) {
-    if scene_rows.iter().any(|r| r.focus_sah_cost.is_some_and(f64::is_finite)) {
+    if scene_rows
+        .iter()
+        .any(|r| r.focus_sah_cost.is_some_and(f64::is_finite))
+    {
         ("focus_sah_cost", |r| r.focus_sah_cost)
     } else {
         ("sah_cost", |r| Some(r.sah_cost))
@@ -121,15 +136,24 @@ pub fn flags(rows: &[ResultRow]) -> Vec<Flag> {
     for scene in unique_by(rows, |r| r.scene.clone()) {
         let scene_rows: Vec<&ResultRow> = rows.iter().filter(|r| r.scene == scene).collect();
         let mut seen = std::collections::HashSet::new();
-        let chains: Vec<&ResultRow> =
-            scene_rows.iter().copied().filter(|r| seen.insert(method_key(r))).collect();
+        let chains: Vec<&ResultRow> = scene_rows
+            .iter()
+            .copied()
+            .filter(|r| seen.insert(method_key(r)))
+            .collect();
         let (metric, value) = flag_metric(&chains);
         let best = chains
             .iter()
             .filter(|r| r.valid)
-            .filter_map(|r| value(r).filter(|v| v.is_finite() && *v > 0.0).map(|v| (v, *r)))
+            .filter_map(|r| {
+                value(r)
+                    .filter(|v| v.is_finite() && *v > 0.0)
+                    .map(|v| (v, *r))
+            })
             .min_by(|a, b| a.0.total_cmp(&b.0));
-        let Some((best, best_row)) = best else { continue };
+        let Some((best, best_row)) = best else {
+            continue;
+        };
         for r in &chains {
             let Some(v) = value(r) else { continue };
             let ratio = if v.is_finite() { v / best } else { f64::NAN };
@@ -218,18 +242,33 @@ pub fn find_sweeps(rows: &[ResultRow]) -> Vec<Sweep> {
             // Every scene of the group must have the parameter as a finite number.
             let mut groups: BTreeMap<String, Vec<(f64, String)>> = BTreeMap::new();
             for (spec, _, p) in &scenes {
-                let Some(x) = p.get(k).and_then(|v| v.parse::<f64>().ok()).filter(|x| x.is_finite()) else {
+                let Some(x) = p
+                    .get(k)
+                    .and_then(|v| v.parse::<f64>().ok())
+                    .filter(|x| x.is_finite())
+                else {
                     continue;
                 };
-                let fixed: Vec<String> =
-                    p.iter().filter(|(pk, _)| *pk != k).map(|(pk, pv)| format!("{pk}={pv}")).collect();
-                groups.entry(fixed.join(",")).or_default().push((x, spec.clone()));
+                let fixed: Vec<String> = p
+                    .iter()
+                    .filter(|(pk, _)| *pk != k)
+                    .map(|(pk, pv)| format!("{pk}={pv}"))
+                    .collect();
+                groups
+                    .entry(fixed.join(","))
+                    .or_default()
+                    .push((x, spec.clone()));
             }
             for (fixed, mut points) in groups {
                 points.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
                 points.dedup_by(|a, b| a.0 == b.0);
                 if points.len() >= MIN_SWEEP_POINTS {
-                    out.push(Sweep { generator: g.to_string(), param: k.clone(), fixed, points });
+                    out.push(Sweep {
+                        generator: g.to_string(),
+                        param: k.clone(),
+                        fixed,
+                        points,
+                    });
                 }
             }
         }
@@ -268,7 +307,12 @@ pub const SWEEP_METRICS: &[SweepMetric] = &[
         rays: None,
         value: |r| r.focus_sah_cost,
     },
-    SweepMetric { id: "sah_cost", label: "SAH cost (whole scene)", rays: None, value: |r| Some(r.sah_cost) },
+    SweepMetric {
+        id: "sah_cost",
+        label: "SAH cost (whole scene)",
+        rays: None,
+        value: |r| Some(r.sah_cost),
+    },
     SweepMetric {
         id: "steps_primary",
         label: "traversal steps per primary ray",
@@ -299,7 +343,11 @@ pub fn sweep_series(sweep: &Sweep, rows: &[ResultRow], metric: &SweepMetric) -> 
     let in_sweep: Vec<&ResultRow> = rows
         .iter()
         .filter(|r| sweep.points.iter().any(|(_, s)| *s == r.scene))
-        .filter(|r| metric.rays.is_none_or(|k| r.rays_kind.as_deref().is_some_and(|rk| rk.starts_with(k))))
+        .filter(|r| {
+            metric
+                .rays
+                .is_none_or(|k| r.rays_kind.as_deref().is_some_and(|rk| rk.starts_with(k)))
+        })
         .collect();
     let mut out: Vec<Series> = Vec::new();
     for r in &in_sweep {
@@ -311,7 +359,10 @@ pub fn sweep_series(sweep: &Sweep, rows: &[ResultRow], metric: &SweepMetric) -> 
         let mut valid = true;
         for (x, spec) in &sweep.points {
             // First row of this method on this scene (ray sets repeat the build metrics).
-            if let Some(row) = in_sweep.iter().find(|q| q.scene == *spec && method_key(q) == key) {
+            if let Some(row) = in_sweep
+                .iter()
+                .find(|q| q.scene == *spec && method_key(q) == key)
+            {
                 valid &= row.valid;
                 if let Some(y) = (metric.value)(row).filter(|y| y.is_finite()) {
                     points.push((*x, y));
@@ -342,7 +393,11 @@ pub const DROP_THRESHOLD: f64 = 0.10;
 /// value; `None` if it never does (or there are fewer than two points).
 pub fn measured_drop(points: &[(f64, f64)]) -> Option<f64> {
     let &(_, y0) = points.first()?;
-    points.iter().skip(1).find(|(_, y)| *y > y0 * (1.0 + DROP_THRESHOLD)).map(|p| p.0)
+    points
+        .iter()
+        .skip(1)
+        .find(|(_, y)| *y > y0 * (1.0 + DROP_THRESHOLD))
+        .map(|p| p.0)
 }
 
 /// Riemersma eq. 13: an occupation grid of `f` cells delays the drop by `log2(f) / d` when the
@@ -363,7 +418,10 @@ pub fn predicted_drop(e_drop: f64, grid_bits: u32, d: f64) -> f64 {
 pub const SHIFT_MODELS: &[(&str, &str, f64)] = &[("outlier", "e", 3.0)];
 
 pub fn shift_model(sweep: &Sweep) -> Option<f64> {
-    SHIFT_MODELS.iter().find(|(g, p, _)| *g == sweep.generator && *p == sweep.param).map(|m| m.2)
+    SHIFT_MODELS
+        .iter()
+        .find(|(g, p, _)| *g == sweep.generator && *p == sweep.param)
+        .map(|m| m.2)
 }
 
 /// One method's drop: measured, and for grid methods the prediction from the same code without
@@ -388,7 +446,13 @@ fn without_grid(key: &str) -> String {
         let p: Vec<String> = parts[3]
             .split(',')
             .filter(|kv| kv.starts_with("grid_bits=") || !kv.starts_with("grid_"))
-            .map(|kv| if kv.starts_with("grid_bits=") { "grid_bits=0".to_string() } else { kv.to_string() })
+            .map(|kv| {
+                if kv.starts_with("grid_bits=") {
+                    "grid_bits=0".to_string()
+                } else {
+                    kv.to_string()
+                }
+            })
             .collect();
         parts[3] = p.join(",");
     }
@@ -408,7 +472,11 @@ pub fn drops(series: &[Series], d: f64) -> Vec<Drop> {
                 match series.iter().find(|r| r.key == rk) {
                     Some(r) => {
                         let rd = measured_drop(&r.points);
-                        (Some(r.label.clone()), rd, rd.map(|e| predicted_drop(e, s.grid_bits, d)))
+                        (
+                            Some(r.label.clone()),
+                            rd,
+                            rd.map(|e| predicted_drop(e, s.grid_bits, d)),
+                        )
                     }
                     None => (None, None, None),
                 }
@@ -450,7 +518,9 @@ mod tests {
         );
         // grid_frame exists only with a grid (the registry drops it at grid_bits=0).
         assert_eq!(
-            without_grid("aac|delta=4,epsilon=0.2|emc64-var|bounds=scene,grid_bits=9,grid_frame=tight|none"),
+            without_grid(
+                "aac|delta=4,epsilon=0.2|emc64-var|bounds=scene,grid_bits=9,grid_frame=tight|none"
+            ),
             "aac|delta=4,epsilon=0.2|emc64-var|bounds=scene,grid_bits=0|none"
         );
     }

@@ -39,7 +39,12 @@ pub fn figure(sweep: &Sweep, metric_label: &str, series: &[Series], drops: &[Dro
             })
             .collect::<Vec<_>>()
     };
-    let color_of = |s: &Series| encoders.iter().position(|e| Some(*e) == s.encoder.as_deref()).unwrap_or(0);
+    let color_of = |s: &Series| {
+        encoders
+            .iter()
+            .position(|e| Some(*e) == s.encoder.as_deref())
+            .unwrap_or(0)
+    };
     let mut panels = Vec::new();
     for b in &builders {
         let mut curves: Vec<Curve> = series
@@ -55,7 +60,9 @@ pub fn figure(sweep: &Sweep, metric_label: &str, series: &[Series], drops: &[Dro
         curves.extend(reference_curves());
         let mut markers = Vec::new();
         for d in drops.iter().filter(|d| d.builder == *b) {
-            let Some(s) = series.iter().find(|s| s.label == d.method) else { continue };
+            let Some(s) = series.iter().find(|s| s.label == d.method) else {
+                continue;
+            };
             if let Some(x) = d.measured {
                 markers.push(Marker {
                     x,
@@ -73,20 +80,37 @@ pub fn figure(sweep: &Sweep, metric_label: &str, series: &[Series], drops: &[Dro
                 });
             }
         }
-        panels.push(SweepPanel { title: b.to_string(), curves, markers });
+        panels.push(SweepPanel {
+            title: b.to_string(),
+            curves,
+            markers,
+        });
     }
     if builders.is_empty() {
         let curves = series
             .iter()
             .enumerate()
-            .map(|(i, s)| Curve { label: invalid(s, s.label.clone()), color_index: i, reference: false, points: s.points.clone() })
+            .map(|(i, s)| Curve {
+                label: invalid(s, s.label.clone()),
+                color_index: i,
+                reference: false,
+                points: s.points.clone(),
+            })
             .collect();
-        panels.push(SweepPanel { title: "all methods".into(), curves, markers: Vec::new() });
+        panels.push(SweepPanel {
+            title: "all methods".into(),
+            curves,
+            markers: Vec::new(),
+        });
     }
     SweepFigure {
         caption: format!("{}: {}", sweep.title(), metric_label),
         x_desc: sweep.param.clone(),
-        y_desc: metric_label.split(" (").next().unwrap_or(metric_label).to_string(),
+        y_desc: metric_label
+            .split(" (")
+            .next()
+            .unwrap_or(metric_label)
+            .to_string(),
         panels,
     }
 }
@@ -108,7 +132,8 @@ pub fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<String>
             if series.is_empty() {
                 continue;
             }
-            let cost_metric = metric.id == "focus_sah_cost" || (metric.id == "sah_cost" && !has_focus);
+            let cost_metric =
+                metric.id == "focus_sah_cost" || (metric.id == "sah_cost" && !has_focus);
             let drops = match d {
                 Some(d) if cost_metric => analysis::drops(&series, d),
                 _ => Vec::new(),
@@ -124,7 +149,8 @@ pub fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<String>
         }
     }
     let intro = if sweeps.is_empty() {
-        "No generated scenes differing in one numeric parameter (e.g. gen:outlier:n=20000,e=0..30).".to_string()
+        "No generated scenes differing in one numeric parameter (e.g. gen:outlier:n=20000,e=0..30)."
+            .to_string()
     } else {
         format!(
             "Generated scenes that differ in one numeric generator parameter, one curve per method. \
@@ -139,7 +165,13 @@ pub fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<String>
             DROP_THRESHOLD * 100.0
         )
     };
-    Section { id: "sweeps", title: "Scene-parameter sweeps".into(), intro, plots, extra }
+    Section {
+        id: "sweeps",
+        title: "Scene-parameter sweeps".into(),
+        intro,
+        plots,
+        extra,
+    }
 }
 
 fn drop_table(h: &mut String, sw: &Sweep, metric: &str, d: f64, drops: &[Drop]) {
@@ -158,7 +190,11 @@ fn drop_table(h: &mut String, sw: &Sweep, metric: &str, d: f64, drops: &[Drop]) 
         return;
     }
     // Measured drops are sampled values: the true onset lies after the previous sample.
-    let step = sw.points.windows(2).map(|w| w[1].0 - w[0].0).fold(f64::INFINITY, f64::min);
+    let step = sw
+        .points
+        .windows(2)
+        .map(|w| w[1].0 - w[0].0)
+        .fold(f64::INFINITY, f64::min);
     if step.is_finite() {
         let _ = writeln!(
             h,
@@ -181,7 +217,11 @@ fn drop_table(h: &mut String, sw: &Sweep, metric: &str, d: f64, drops: &[Drop]) 
     );
     for dr in drops {
         let grid = dr.grid_bits > 0;
-        let mv = if grid { fmt_num(analysis::move_d(2f64.powi(dr.grid_bits as i32), d)) } else { String::new() };
+        let mv = if grid {
+            fmt_num(analysis::move_d(2f64.powi(dr.grid_bits as i32), d))
+        } else {
+            String::new()
+        };
         let delta = match (dr.measured, dr.predicted) {
             (Some(m), Some(p)) => {
                 let x = m - p;

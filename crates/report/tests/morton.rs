@@ -69,7 +69,11 @@ fn outlier_rows() -> Vec<ResultRow> {
                 r.focus_sah_cost = Some(cost_at(e, drop));
                 r.focus_triangles = Some(20_000);
                 r.sah_cost = 1e6; // whole-scene cost: dominated by the outlier, never used
-                r.duplicate_code_fraction = Some(if drop.is_some_and(|d| e >= d) { 0.9 } else { 0.01 });
+                r.duplicate_code_fraction = Some(if drop.is_some_and(|d| e >= d) {
+                    0.9
+                } else {
+                    0.01
+                });
                 r.rays_kind = Some("primary:256x256".into());
                 r.traversal_steps_per_ray = Some(r.focus_sah_cost.unwrap() / 4.0);
                 r.intersections_per_ray = Some(3.0);
@@ -95,7 +99,10 @@ fn predicted_shift_numbers() {
     assert_eq!(analysis::predicted_drop(20.0, 12, 3.0), 24.0);
     assert_eq!(analysis::predicted_drop(4.0, 0, 3.0), 4.0);
     // Threshold: strictly more than 10 % above the first value.
-    assert_eq!(analysis::measured_drop(&[(0.0, 100.0), (2.0, 110.0), (4.0, 110.1)]), Some(4.0));
+    assert_eq!(
+        analysis::measured_drop(&[(0.0, 100.0), (2.0, 110.0), (4.0, 110.1)]),
+        Some(4.0)
+    );
     assert_eq!(analysis::measured_drop(&[(0.0, 100.0), (2.0, 105.0)]), None);
     assert_eq!(analysis::measured_drop(&[(0.0, 100.0)]), None);
     assert_eq!(analysis::measured_drop(&[]), None);
@@ -111,7 +118,10 @@ fn sweeps_and_drops() {
     let sweeps = analysis::find_sweeps(&rows);
     assert_eq!(sweeps.len(), 1, "{sweeps:?}");
     let sw = &sweeps[0];
-    assert_eq!((sw.generator.as_str(), sw.param.as_str(), sw.fixed.as_str()), ("outlier", "e", "n=20000"));
+    assert_eq!(
+        (sw.generator.as_str(), sw.param.as_str(), sw.fixed.as_str()),
+        ("outlier", "e", "n=20000")
+    );
     assert_eq!(sw.points.len(), 16);
     assert_eq!(sw.points[5], (10.0, "gen:outlier:n=20000,e=10".to_string()));
     assert_eq!(analysis::shift_model(sw), Some(3.0));
@@ -121,9 +131,16 @@ fn sweeps_and_drops() {
     let drops = analysis::drops(&series, 3.0);
     assert_eq!(drops.len(), 8, "only methods with an encoder");
     let find = |b: &str, ep: &str| {
-        let enc = if ep.starts_with("bits") { "morton" } else { "emc64-var" };
+        let enc = if ep.starts_with("bits") {
+            "morton"
+        } else {
+            "emc64-var"
+        };
         let m = format!("{enc} {ep}");
-        drops.iter().find(|d| d.builder == b && d.method.ends_with(&m)).unwrap_or_else(|| panic!("{b} {m}: {drops:?}"))
+        drops
+            .iter()
+            .find(|d| d.builder == b && d.method.ends_with(&m))
+            .unwrap_or_else(|| panic!("{b} {m}: {drops:?}"))
     };
     let p = find("ploc radius=10", GRID9);
     assert_eq!(p.measured, Some(14.0));
@@ -131,11 +148,20 @@ fn sweeps_and_drops() {
     assert_eq!(p.predicted, Some(13.0), "10 + log2(2^9)/3");
     assert!(p.reference.as_deref().unwrap().ends_with(PLAIN));
     let l = find("lbvh", GRID9);
-    assert_eq!((l.measured, l.reference_drop, l.predicted), (Some(12.0), Some(8.0), Some(11.0)));
+    assert_eq!(
+        (l.measured, l.reference_drop, l.predicted),
+        (Some(12.0), Some(8.0), Some(11.0))
+    );
     let plain = find("ploc radius=10", PLAIN);
-    assert_eq!((plain.measured, plain.predicted, plain.reference.clone()), (Some(10.0), None, None));
+    assert_eq!(
+        (plain.measured, plain.predicted, plain.reference.clone()),
+        (Some(10.0), None, None)
+    );
     let emc9 = find("ploc radius=10", EMC9);
-    assert_eq!((emc9.measured, emc9.reference_drop, emc9.predicted), (None, Some(20.0), Some(23.0)));
+    assert_eq!(
+        (emc9.measured, emc9.reference_drop, emc9.predicted),
+        (None, Some(20.0), Some(23.0))
+    );
 
     let tmp = tempfile::tempdir().unwrap();
     let out = std::env::var_os("BVHLAB_REPORT_KEEP_MORTON")
@@ -144,17 +170,29 @@ fn sweeps_and_drops() {
     let index = write_report(&out, "outliers", &rows, None).unwrap();
     let html = std::fs::read_to_string(index).unwrap();
     assert!(!html.contains("Problems while making"), "{html}");
-    for stem in ["sweep_outlier_e_focus_sah_cost", "sweep_outlier_e_steps_primary", "sweep_outlier_e_duplicate_code_fraction"] {
-        let png = std::fs::read(out.join(format!("plots/{stem}.png"))).unwrap_or_else(|e| panic!("{stem}: {e}"));
+    for stem in [
+        "sweep_outlier_e_focus_sah_cost",
+        "sweep_outlier_e_steps_primary",
+        "sweep_outlier_e_duplicate_code_fraction",
+    ] {
+        let png = std::fs::read(out.join(format!("plots/{stem}.png")))
+            .unwrap_or_else(|e| panic!("{stem}: {e}"));
         assert_eq!(&png[..4], b"\x89PNG");
         let svg = std::fs::read_to_string(out.join(format!("plots/{stem}.svg"))).unwrap();
         assert!(svg.contains("<svg"));
-        assert!(html.contains(&format!("plots/{stem}.png")), "{stem} in index.html");
+        assert!(
+            html.contains(&format!("plots/{stem}.png")),
+            "{stem} in index.html"
+        );
     }
     // With a focus cost, the whole-scene cost (here 1e6 for every method) is not swept.
     assert!(!out.join("plots/sweep_outlier_e_sah_cost.png").exists());
-    let svg = std::fs::read_to_string(out.join("plots/sweep_outlier_e_focus_sah_cost.svg")).unwrap();
-    assert!(svg.contains("predicted 13"), "predicted marker label in the plot");
+    let svg =
+        std::fs::read_to_string(out.join("plots/sweep_outlier_e_focus_sah_cost.svg")).unwrap();
+    assert!(
+        svg.contains("predicted 13"),
+        "predicted marker label in the plot"
+    );
     assert!(svg.contains("binned-sah"), "reference curve in the legend");
 
     // The drop table: measured vs predicted, with the threshold stated.
@@ -166,20 +204,36 @@ fn sweeps_and_drops() {
         .find(|r| r.contains("ploc radius=10") && r.contains(GRID9))
         .expect("ploc grid row");
     // measured 14, e_drop 10, move 3, predicted 13, difference +1.
-    let cells: Vec<&str> = row.split("<td").skip(1).map(|c| &c[c.find('>').unwrap() + 1..c.find("</td>").unwrap()]).collect();
-    assert_eq!(&cells[2..], &["9", "14", cells[4], "10", "3", "13", "+1"], "{cells:?}");
+    let cells: Vec<&str> = row
+        .split("<td")
+        .skip(1)
+        .map(|c| &c[c.find('>').unwrap() + 1..c.find("</td>").unwrap()])
+        .collect();
+    assert_eq!(
+        &cells[2..],
+        &["9", "14", cells[4], "10", "3", "13", "+1"],
+        "{cells:?}"
+    );
     assert!(sec.contains("none up to e = 30"), "EMC grid never drops");
 }
 
 fn flag_set(flags: &[Flag]) -> Vec<(String, &'static str, String)> {
-    flags.iter().map(|f| (f.scene_name.clone(), f.metric, f.method.clone())).collect()
+    flags
+        .iter()
+        .map(|f| (f.scene_name.clone(), f.metric, f.method.clone()))
+        .collect()
 }
 
 #[test]
 fn flags_computed() {
     let mut rows = Vec::new();
     // Focus scene: whole-scene costs would flag the wrong method.
-    for (m, focus, whole) in [("a", 10.0, 1000.0), ("b", 15.0, 10.0), ("c", 15.01, 10.0), ("d", 40.0, 10.0)] {
+    for (m, focus, whole) in [
+        ("a", 10.0, 1000.0),
+        ("b", 15.0, 10.0),
+        ("c", 15.01, 10.0),
+        ("d", 40.0, 10.0),
+    ] {
         let mut r = base("gen:outlier:e=20", m, "");
         r.focus_sah_cost = Some(focus);
         r.sah_cost = whole;
@@ -190,7 +244,14 @@ fn flags_computed() {
     }
     // Plain scene: sah_cost. An invalid chain with the lowest cost is not the best, but is flagged
     // when above the ratio; a NaN cost is always flagged.
-    for (m, cost, valid) in [("a", 100.0, true), ("b", 150.0, true), ("c", 151.0, true), ("x", 10.0, false), ("y", 200.0, false), ("n", f64::NAN, true)] {
+    for (m, cost, valid) in [
+        ("a", 100.0, true),
+        ("b", 150.0, true),
+        ("c", 151.0, true),
+        ("x", 10.0, false),
+        ("y", 200.0, false),
+        ("n", f64::NAN, true),
+    ] {
         let mut r = base("gen:sphere", m, "");
         r.sah_cost = cost;
         r.valid = valid;
@@ -214,14 +275,21 @@ fn flags_computed() {
     assert!(flags[4].ratio.is_nan());
 
     let tmp = tempfile::tempdir().unwrap();
-    let html = std::fs::read_to_string(write_report(tmp.path(), "flags", &rows, None).unwrap()).unwrap();
+    let html =
+        std::fs::read_to_string(write_report(tmp.path(), "flags", &rows, None).unwrap()).unwrap();
     let sec = &html[html.find("id=\"flags\"").unwrap()..html.find("id=\"heatmaps\"").unwrap()];
     assert!(sec.contains("<td>focus_sah_cost</td><td>d </td>"), "{sec}");
     assert!(sec.contains("<td class=\"n\">4x</td>"));
-    assert!(sec.contains("<tr class=\"invalid\"><td>sphere</td><td>sah_cost</td><td>y </td>"), "invalid flag is red");
+    assert!(
+        sec.contains("<tr class=\"invalid\"><td>sphere</td><td>sah_cost</td><td>y </td>"),
+        "invalid flag is red"
+    );
     // Invalid rows stand out: a red box at the top listing each invalid chain, linked from the nav.
     let top = &html[..html.find("id=\"pareto\"").unwrap()];
-    assert!(top.contains("class=\"invalid-box\"") && top.contains("2 invalid results"), "{top}");
+    assert!(
+        top.contains("class=\"invalid-box\"") && top.contains("2 invalid results"),
+        "{top}"
+    );
     assert!(top.contains("href=\"#invalid\""));
     assert!(top.contains("<tr class=\"invalid\"><td>sphere</td><td>x </td>"));
 }
@@ -230,7 +298,8 @@ fn flags_computed() {
 fn no_flags_no_invalid_box() {
     let rows = vec![base("gen:sphere", "a", ""), base("gen:sphere", "b", "")];
     let tmp = tempfile::tempdir().unwrap();
-    let html = std::fs::read_to_string(write_report(tmp.path(), "ok", &rows, None).unwrap()).unwrap();
+    let html =
+        std::fs::read_to_string(write_report(tmp.path(), "ok", &rows, None).unwrap()).unwrap();
     assert!(!html.contains("class=\"invalid-box\"") && !html.contains("#invalid"));
     assert!(html.contains("No method is flagged"));
     assert!(html.contains("No generated scenes differing in one numeric parameter"));
@@ -258,17 +327,34 @@ fn pareto_charges_encode_time() {
     let tmp = tempfile::tempdir().unwrap();
     write_report(tmp.path(), "p", &[r, t], None).unwrap();
     let svg = std::fs::read_to_string(tmp.path().join("plots/pareto_sphere.svg")).unwrap();
-    assert!(svg.contains("encode + build + compact time"), "x axis is the total construction time");
+    assert!(
+        svg.contains("encode + build + compact time"),
+        "x axis is the total construction time"
+    );
 }
 
 fn reference_dir() -> Option<&'static Path> {
     let p = Path::new("/work/shared/reference");
-    (p.join("frantal_t10_sah_cost.tsv").exists() && p.join(reference::EMC_TABLE).exists()).then_some(p)
+    (p.join("frantal_t10_sah_cost.tsv").exists() && p.join(reference::EMC_TABLE).exists())
+        .then_some(p)
 }
 
 /// Dragon rows as the pipeline writes them for frantal-morton.toml.
-fn dragon(builder: &str, params: &str, encoder: &str, eparams: &str, cost: f64, total: f64) -> ResultRow {
-    let mut r = coded("/work/shared/scenes/stanford_dragon.obj.gz", builder, params, encoder, eparams);
+fn dragon(
+    builder: &str,
+    params: &str,
+    encoder: &str,
+    eparams: &str,
+    cost: f64,
+    total: f64,
+) -> ResultRow {
+    let mut r = coded(
+        "/work/shared/scenes/stanford_dragon.obj.gz",
+        builder,
+        params,
+        encoder,
+        eparams,
+    );
     r.scene_name = "stanford_dragon".into();
     r.triangles = 871_414;
     r.sah_cost = cost;
@@ -284,25 +370,67 @@ fn thesis_tables_10_and_25() {
     };
     let rows = vec![
         // AHQ (thesis 160.0 / table 25: cost 99.8 %, build 113.8 %).
-        dragon("aac", "delta=20,epsilon=0.1", "morton", "bits=auto:aac,bounds=scene,grid_bits=0", 163.0, 0.80),
+        dragon(
+            "aac",
+            "delta=20,epsilon=0.1",
+            "morton",
+            "bits=auto:aac,bounds=scene,grid_bits=0",
+            163.0,
+            0.80,
+        ),
         dragon("aac", "delta=20,epsilon=0.1", "emc64-var", EMC, 158.4, 0.90),
         // ALQ (158.4): 10 % off, not within 3 %.
-        dragon("aac", "delta=4,epsilon=0.2", "morton", "bits=auto:aac,bounds=scene,grid_bits=0", 174.24, 0.5),
+        dragon(
+            "aac",
+            "delta=4,epsilon=0.2",
+            "morton",
+            "bits=auto:aac,bounds=scene,grid_bits=0",
+            174.24,
+            0.5,
+        ),
         // PL1 (154.0); a bits=10 and a grid row of the same builder must not match PL1.
-        dragon("ploc", "radius=10", "morton", "bits=10,bounds=scene,grid_bits=0", 999.0, 0.1),
-        dragon("ploc", "radius=10", "morton", "bits=auto:ploc,bounds=scene,grid_bits=9", 998.0, 0.1),
-        dragon("ploc", "radius=10", "morton", "bits=auto:ploc,bounds=scene,grid_bits=0", 154.0, 1.0),
+        dragon(
+            "ploc",
+            "radius=10",
+            "morton",
+            "bits=10,bounds=scene,grid_bits=0",
+            999.0,
+            0.1,
+        ),
+        dragon(
+            "ploc",
+            "radius=10",
+            "morton",
+            "bits=auto:ploc,bounds=scene,grid_bits=9",
+            998.0,
+            0.1,
+        ),
+        dragon(
+            "ploc",
+            "radius=10",
+            "morton",
+            "bits=auto:ploc,bounds=scene,grid_bits=0",
+            154.0,
+            1.0,
+        ),
         // PL2 emc row without its morton row: no ratio.
         dragon("ploc", "radius=25", "emc64-var", EMC, 150.0, 1.0),
     ];
     let rep = reference::compare(dir, &rows).unwrap();
     let get = |metric: &str, abbrev: &str| {
-        let v: Vec<_> = rep.comparisons.iter().filter(|c| c.metric == metric && c.abbrev == abbrev).collect();
+        let v: Vec<_> = rep
+            .comparisons
+            .iter()
+            .filter(|c| c.metric == metric && c.abbrev == abbrev)
+            .collect();
         assert!(v.len() <= 1, "{v:?}");
         v.first().map(|c| (*c).clone())
     };
     let ahq = get("SAH cost", "AHQ").expect("AHQ compared");
-    assert_eq!((ahq.ours, ahq.paper, ahq.thesis_scene.as_str()), (163.0, 160.0, "Dragon"));
+    assert_eq!(
+        (ahq.ours, ahq.paper, ahq.thesis_scene.as_str()),
+        (163.0, 160.0, "Dragon")
+    );
     assert!((ahq.diff_percent - 1.875).abs() < 1e-9);
     assert!(ahq.within());
     let alq = get("SAH cost", "ALQ").expect("ALQ compared");
@@ -311,7 +439,11 @@ fn thesis_tables_10_and_25() {
     assert_eq!(pl1.ours, 154.0, "the bits=auto, no-grid row");
     assert!(get("SAH cost", "PL2").is_none(), "no morton row for PL2");
     // EMC rows never stand in for the Morton columns.
-    assert!(rep.comparisons.iter().filter(|c| c.metric == "SAH cost").all(|c| !c.method.contains("emc64")));
+    assert!(rep
+        .comparisons
+        .iter()
+        .filter(|c| c.metric == "SAH cost")
+        .all(|c| !c.method.contains("emc64")));
 
     let cost = get(reference::EMC_COST_LABEL, "AHQ").expect("table 25 cost ratio");
     assert!((cost.ours - 100.0 * 158.4 / 163.0).abs() < 1e-9);
@@ -319,16 +451,32 @@ fn thesis_tables_10_and_25() {
     let build = get(reference::EMC_BUILD_LABEL, "AHQ").expect("table 25 build ratio");
     assert!((build.ours - 112.5).abs() < 1e-9, "{}", build.ours);
     assert_eq!(build.paper, 113.8);
-    assert!(get(reference::EMC_COST_LABEL, "PL1").is_none(), "no emc row for PL1");
-    assert!(get(reference::EMC_COST_LABEL, "PL2").is_none(), "no morton row for PL2");
+    assert!(
+        get(reference::EMC_COST_LABEL, "PL1").is_none(),
+        "no emc row for PL1"
+    );
+    assert!(
+        get(reference::EMC_COST_LABEL, "PL2").is_none(),
+        "no morton row for PL2"
+    );
 
     let tmp = tempfile::tempdir().unwrap();
-    let html = std::fs::read_to_string(write_report(tmp.path(), "fm", &rows, Some(dir)).unwrap()).unwrap();
+    let html =
+        std::fs::read_to_string(write_report(tmp.path(), "fm", &rows, Some(dir)).unwrap()).unwrap();
     let sec = &html[html.find("id=\"reference\"").unwrap()..html.find("id=\"results\"").unwrap()];
     assert!(sec.contains("within 3%"));
-    let ahq_row = sec.split("<tr>").find(|r| r.contains("<td>SAH cost</td>") && r.contains("<td>AHQ</td>")).unwrap();
-    assert!(ahq_row.contains("+1.9%") && ahq_row.contains("&#10003;"), "{ahq_row}");
-    let alq_row = sec.split("<tr>").find(|r| r.contains("<td>SAH cost</td>") && r.contains("<td>ALQ</td>")).unwrap();
+    let ahq_row = sec
+        .split("<tr>")
+        .find(|r| r.contains("<td>SAH cost</td>") && r.contains("<td>AHQ</td>"))
+        .unwrap();
+    assert!(
+        ahq_row.contains("+1.9%") && ahq_row.contains("&#10003;"),
+        "{ahq_row}"
+    );
+    let alq_row = sec
+        .split("<tr>")
+        .find(|r| r.contains("<td>SAH cost</td>") && r.contains("<td>ALQ</td>"))
+        .unwrap();
     assert!(!alq_row.contains("&#10003;"));
     assert!(sec.contains(reference::EMC_BUILD_LABEL));
 }
@@ -340,7 +488,10 @@ fn top_down_reference_rows_still_match() {
     fsw.encoder = None;
     fsw.encode_params = None;
     let rep = reference::compare(dir, &[fsw.clone()]).unwrap();
-    assert!(rep.comparisons.iter().any(|c| c.abbrev == "FSW" && c.metric == "SAH cost"));
+    assert!(rep
+        .comparisons
+        .iter()
+        .any(|c| c.abbrev == "FSW" && c.metric == "SAH cost"));
     // A top-down row with an encoder is not the thesis' FSW.
     fsw.encoder = Some("morton".into());
     let rep = reference::compare(dir, &[fsw]).unwrap();
@@ -356,7 +507,8 @@ fn pareto_uses_focus_cost_with_a_focus_box() {
     b.sah_cost = 2e6;
     b.focus_sah_cost = Some(80.0);
     let tmp = tempfile::tempdir().unwrap();
-    let html = std::fs::read_to_string(write_report(tmp.path(), "p", &[a, b], None).unwrap()).unwrap();
+    let html =
+        std::fs::read_to_string(write_report(tmp.path(), "p", &[a, b], None).unwrap()).unwrap();
     assert!(html.contains("build time vs focus SAH cost"), "{html}");
     let svg = std::fs::read_to_string(tmp.path().join("plots/pareto_outlier_e_20.svg")).unwrap();
     assert!(svg.contains("focus SAH cost"));

@@ -40,8 +40,12 @@ pub struct SweepFigure {
     pub panels: Vec<SweepPanel>,
 }
 
-const REF_COLORS: [RGBColor; 4] =
-    [RGBColor(40, 40, 40), RGBColor(120, 120, 120), RGBColor(90, 60, 30), RGBColor(0, 90, 90)];
+const REF_COLORS: [RGBColor; 4] = [
+    RGBColor(40, 40, 40),
+    RGBColor(120, 120, 120),
+    RGBColor(90, 60, 30),
+    RGBColor(0, 90, 90),
+];
 
 fn curve_color(c: &Curve) -> RGBColor {
     if c.reference {
@@ -60,10 +64,17 @@ impl SweepFigure {
     /// are positive and span more than a factor 20 (a cost that explodes at large e would flatten
     /// everything else).
     pub fn y_range(&self) -> Option<(f64, f64, bool)> {
-        let ys = self.panels.iter().flat_map(|p| p.curves.iter()).flat_map(|c| c.points.iter()).map(|p| p.1);
+        let ys = self
+            .panels
+            .iter()
+            .flat_map(|p| p.curves.iter())
+            .flat_map(|c| c.points.iter())
+            .map(|p| p.1);
         let (lo, hi) = ys
             .filter(|y| y.is_finite())
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| (a.min(y), b.max(y)));
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| {
+                (a.min(y), b.max(y))
+            });
         if !lo.is_finite() {
             return None;
         }
@@ -71,18 +82,26 @@ impl SweepFigure {
             return Some((lo / 1.3, hi * 1.5, true));
         }
         let span = if hi > lo { hi - lo } else { hi.abs().max(1e-3) };
-        let lo = if lo >= 0.0 && lo - 0.08 * span < 0.0 { 0.0 } else { lo - 0.08 * span };
+        let lo = if lo >= 0.0 && lo - 0.08 * span < 0.0 {
+            0.0
+        } else {
+            lo - 0.08 * span
+        };
         Some((lo, hi + 0.15 * span, false))
     }
 
     fn x_range(&self) -> (f64, f64) {
-        let xs = self
-            .panels
-            .iter()
-            .flat_map(|p| p.curves.iter().flat_map(|c| c.points.iter().map(|p| p.0)).chain(p.markers.iter().map(|m| m.x)));
+        let xs = self.panels.iter().flat_map(|p| {
+            p.curves
+                .iter()
+                .flat_map(|c| c.points.iter().map(|p| p.0))
+                .chain(p.markers.iter().map(|m| m.x))
+        });
         let (lo, hi) = xs
             .filter(|x| x.is_finite())
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                (a.min(x), b.max(x))
+            });
         if !lo.is_finite() {
             return (0.0, 1.0);
         }
@@ -95,14 +114,22 @@ impl Figure for SweepFigure {
     fn size(&self) -> (u32, u32) {
         let cols = self.cols() as u32;
         let rows = self.panels.len().max(1).div_ceil(self.cols()) as u32;
-        let legend = self.panels.iter().map(legend_rows).max().unwrap_or(0) as u32 * LEGEND_ROW as u32 + 10;
+        let legend =
+            self.panels.iter().map(legend_rows).max().unwrap_or(0) as u32 * LEGEND_ROW as u32 + 10;
         (cols * 620, rows * (480 + legend) + 50)
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
-        let root = root.titled(&self.caption, ("sans-serif", 22)).map_err(err)?;
+        let root = root
+            .titled(&self.caption, ("sans-serif", 22))
+            .map_err(err)?;
         let Some((ylo, yhi, log)) = self.y_range() else {
-            root.draw(&Text::new("no finite values", (20, 20), ("sans-serif", 18).into_font())).map_err(err)?;
+            root.draw(&Text::new(
+                "no finite values",
+                (20, 20),
+                ("sans-serif", 18).into_font(),
+            ))
+            .map_err(err)?;
             return Ok(());
         };
         let (xlo, xhi) = self.x_range();
@@ -110,9 +137,25 @@ impl Figure for SweepFigure {
         let areas = root.split_evenly((rows, self.cols()));
         for (panel, area) in self.panels.iter().zip(areas.iter()) {
             if log {
-                draw_panel(area, panel, xlo..xhi, (ylo..yhi).log_scale(), (ylo, yhi), &self.x_desc, &self.y_desc)?;
+                draw_panel(
+                    area,
+                    panel,
+                    xlo..xhi,
+                    (ylo..yhi).log_scale(),
+                    (ylo, yhi),
+                    &self.x_desc,
+                    &self.y_desc,
+                )?;
             } else {
-                draw_panel(area, panel, xlo..xhi, ylo..yhi, (ylo, yhi), &self.x_desc, &self.y_desc)?;
+                draw_panel(
+                    area,
+                    panel,
+                    xlo..xhi,
+                    ylo..yhi,
+                    (ylo, yhi),
+                    &self.x_desc,
+                    &self.y_desc,
+                )?;
             }
         }
         Ok(())
@@ -122,14 +165,21 @@ impl Figure for SweepFigure {
 /// Rows of the legend under a panel (two entries per row).
 fn legend_rows(panel: &SweepPanel) -> usize {
     let kinds = [MarkerKind::Measured, MarkerKind::Predicted];
-    let n = panel.curves.len() + kinds.iter().filter(|k| panel.markers.iter().any(|m| m.kind == **k)).count();
+    let n = panel.curves.len()
+        + kinds
+            .iter()
+            .filter(|k| panel.markers.iter().any(|m| m.kind == **k))
+            .count();
     n.div_ceil(2)
 }
 
 const LEGEND_ROW: i32 = 17;
 
 /// Swatch + label, two columns. Style: 0 solid line, 1 dashed line, 2 thin vertical, 3 dashed vertical.
-fn draw_legend<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, entries: &[(String, RGBColor, u8)]) -> Result<(), String> {
+fn draw_legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    entries: &[(String, RGBColor, u8)],
+) -> Result<(), String> {
     let (w, _) = area.dim_in_pixel();
     let col_w = (w as i32 - 80) / 2;
     for (i, (label, c, style)) in entries.iter().enumerate() {
@@ -137,19 +187,46 @@ fn draw_legend<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, entries: &[(St
         let y = 6 + (i as i32 / 2) * LEGEND_ROW;
         let mid = y + 6;
         match style {
-            0 => area.draw(&PathElement::new(vec![(x, mid), (x + 24, mid)], c.stroke_width(2))).map_err(err)?,
+            0 => area
+                .draw(&PathElement::new(
+                    vec![(x, mid), (x + 24, mid)],
+                    c.stroke_width(2),
+                ))
+                .map_err(err)?,
             1 => {
                 for k in 0..3 {
-                    area.draw(&PathElement::new(vec![(x + 9 * k, mid), (x + 9 * k + 5, mid)], c.stroke_width(2))).map_err(err)?;
+                    area.draw(&PathElement::new(
+                        vec![(x + 9 * k, mid), (x + 9 * k + 5, mid)],
+                        c.stroke_width(2),
+                    ))
+                    .map_err(err)?;
                 }
             }
-            2 => area.draw(&PathElement::new(vec![(x + 12, y), (x + 12, y + 12)], c.stroke_width(1))).map_err(err)?,
+            2 => area
+                .draw(&PathElement::new(
+                    vec![(x + 12, y), (x + 12, y + 12)],
+                    c.stroke_width(1),
+                ))
+                .map_err(err)?,
             _ => {
-                area.draw(&PathElement::new(vec![(x + 12, y), (x + 12, y + 4)], c.stroke_width(2))).map_err(err)?;
-                area.draw(&PathElement::new(vec![(x + 12, y + 8), (x + 12, y + 12)], c.stroke_width(2))).map_err(err)?;
+                area.draw(&PathElement::new(
+                    vec![(x + 12, y), (x + 12, y + 4)],
+                    c.stroke_width(2),
+                ))
+                .map_err(err)?;
+                area.draw(&PathElement::new(
+                    vec![(x + 12, y + 8), (x + 12, y + 12)],
+                    c.stroke_width(2),
+                ))
+                .map_err(err)?;
             }
         }
-        area.draw(&Text::new(label.clone(), (x + 30, y), ("sans-serif", 13).into_font())).map_err(err)?;
+        area.draw(&Text::new(
+            label.clone(),
+            (x + 30, y),
+            ("sans-serif", 13).into_font(),
+        ))
+        .map_err(err)?;
     }
     Ok(())
 }
@@ -198,11 +275,15 @@ where
         let line = vec![(m.x, ylo), (m.x, yhi)];
         match m.kind {
             MarkerKind::Measured => {
-                chart.draw_series(LineSeries::new(line, c.mix(0.8).stroke_width(1))).map_err(err)?;
+                chart
+                    .draw_series(LineSeries::new(line, c.mix(0.8).stroke_width(1)))
+                    .map_err(err)?;
                 any[0] = true;
             }
             MarkerKind::Predicted => {
-                chart.draw_series(DashedLineSeries::new(line, 8, 5, c.stroke_width(2))).map_err(err)?;
+                chart
+                    .draw_series(DashedLineSeries::new(line, 8, 5, c.stroke_width(2)))
+                    .map_err(err)?;
                 any[1] = true;
             }
         }
@@ -210,7 +291,11 @@ where
         chart
             .draw_series(std::iter::once(
                 EmptyElement::at((m.x, yhi))
-                    + Text::new(m.label.clone(), (3, 4 + 14 * (i as i32 % 8)), ("sans-serif", 12).into_font().color(&c)),
+                    + Text::new(
+                        m.label.clone(),
+                        (3, 4 + 14 * (i as i32 % 8)),
+                        ("sans-serif", 12).into_font().color(&c),
+                    ),
             ))
             .map_err(err)?;
     }
@@ -220,27 +305,53 @@ where
     let mut k = 0usize;
     for c in &panel.curves {
         let col = curve_color(c);
-        let pts: Vec<(f64, f64)> = c.points.iter().copied().filter(|p| p.0.is_finite() && p.1.is_finite()).collect();
+        let pts: Vec<(f64, f64)> = c
+            .points
+            .iter()
+            .copied()
+            .filter(|p| p.0.is_finite() && p.1.is_finite())
+            .collect();
         if c.reference {
-            chart.draw_series(DashedLineSeries::new(pts, 6, 4, col.stroke_width(2))).map_err(err)?;
+            chart
+                .draw_series(DashedLineSeries::new(pts, 6, 4, col.stroke_width(2)))
+                .map_err(err)?;
             continue;
         }
         let width = 4u32.saturating_sub(k.min(2) as u32);
-        chart.draw_series(LineSeries::new(pts.clone(), col.stroke_width(width))).map_err(err)?;
+        chart
+            .draw_series(LineSeries::new(pts.clone(), col.stroke_width(width)))
+            .map_err(err)?;
         match k % 4 {
-            0 => chart.draw_series(pts.iter().map(|&p| Circle::new(p, 4, col.filled()))).map(|_| ()),
-            1 => chart.draw_series(pts.iter().map(|&p| TriangleMarker::new(p, 5, col.filled()))).map(|_| ()),
-            2 => chart.draw_series(pts.iter().map(|&p| Cross::new(p, 4, col.stroke_width(2)))).map(|_| ()),
+            0 => chart
+                .draw_series(pts.iter().map(|&p| Circle::new(p, 4, col.filled())))
+                .map(|_| ()),
+            1 => chart
+                .draw_series(pts.iter().map(|&p| TriangleMarker::new(p, 5, col.filled())))
+                .map(|_| ()),
+            2 => chart
+                .draw_series(pts.iter().map(|&p| Cross::new(p, 4, col.stroke_width(2))))
+                .map(|_| ()),
             _ => chart
-                .draw_series(pts.iter().map(|&p| EmptyElement::at(p) + Rectangle::new([(-3, -3), (3, 3)], col.filled())))
+                .draw_series(pts.iter().map(|&p| {
+                    EmptyElement::at(p) + Rectangle::new([(-3, -3), (3, 3)], col.filled())
+                }))
                 .map(|_| ()),
         }
         .map_err(err)?;
         k += 1;
     }
     // Legend below the chart (not over the data or the marker labels): curves, then marker kinds.
-    let mut entries: Vec<(String, RGBColor, u8)> =
-        panel.curves.iter().map(|c| (c.label.clone(), curve_color(c), if c.reference { 1 } else { 0 })).collect();
+    let mut entries: Vec<(String, RGBColor, u8)> = panel
+        .curves
+        .iter()
+        .map(|c| {
+            (
+                c.label.clone(),
+                curve_color(c),
+                if c.reference { 1 } else { 0 },
+            )
+        })
+        .collect();
     if any[0] {
         entries.push(("solid vertical: measured drop".into(), BLACK, 2));
     }
