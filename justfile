@@ -23,6 +23,18 @@ bench SCENE="../shared/scenes/stanford_dragon.obj.gz":
 frantal:
     cargo run --release -- sweep experiments/frantal-sah.toml
 
+# Thesis tables 10 and 25: AAC (HQ, fast) and PLOC (r = 10, 25, 100) with Morton codes and EMC-64-var.
+morton:
+    cargo run --release -- sweep experiments/frantal-morton.toml
+
+# The Morton failure study (Riemersma 2024): far outlier e = 0..30 and a huge ground plane.
+outliers:
+    cargo run --release -- sweep experiments/morton-outliers.toml
+
+# The Morton-family speed targets with PASS/MISS, beside Embree, in one run.
+bench-morton RUNS="5":
+    bash scripts/bench-builders.sh morton {{RUNS}}
+
 # What CI runs.
 ci:
     bash .ci/run
