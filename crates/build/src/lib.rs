@@ -3,8 +3,11 @@
 //!
 //! The top-down builders share one iterative driver ([`topdown`]): a builder only supplies the split
 //! decision for a primitive range (leaf or two child ranges), the driver owns the node array and the
-//! explicit task stack. Tasks are independent sub-ranges, so a later parallel driver can hand them to
-//! threads (thesis 3.1.2, "vertical" scheme) without touching the split decisions.
+//! explicit task stack. Tasks are independent sub-ranges, which is what the parallel binned SAH
+//! (`binned_sah::build_parallel`, thesis 3.1.2) hands to threads below its horizontal phase.
+//!
+//! The bottom-up builders (lbvh, aac, ploc) take primitives already sorted by the encode stage's
+//! codes ([`SortedCodes`]) and emit a cluster tree that [`bottomup::to_bvh`] lays out.
 
 pub mod aac;
 pub mod binned_sah;
