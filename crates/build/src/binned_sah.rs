@@ -289,53 +289,53 @@ pub fn build_parallel_tuned(
     let (mut refs, root) = make_refs_parallel(boxes, centers);
     let k = bins.max(2) as usize;
     let threads = rayon::current_num_threads();
-    let mut flags = vec![false; refs.len()];
-    let mut binner = Binner::new(k);
-    // Horizontal phase: one node at a time, binning and partition spread over the threads.
-    let horizontal = |refs: &mut [PrimRef], r: &Range| -> Option<(Range, Range)> {
-        let (axis, cb_min, k0) = match plan(r, k, cfg, term) {
-            Plan::Leaf => return None,
-            Plan::Median(axis) => return Some(object_median(refs, r, axis)),
-            Plan::Bin { axis, cb_min, k0 } => (axis, cb_min, k0),
-        };
-        let chunk = tuning.chunk(r.len(), threads);
-        // Per-chunk bins merged afterwards: counts add and boxes take min/max, both exact, so
-        // the merged bins equal the sequential ones whatever the chunking.
-        let (count, bounds) = refs[r.begin..r.end]
-            .par_chunks(chunk)
-            .map(|ps| {
-                let mut count = vec![0u32; k];
-                let mut bounds = vec![BoxA::EMPTY; k];
-                for p in ps {
-                    let b = bin_of(p.c[axis], cb_min, k0, k);
-                    count[b] += 1;
-                    bounds[b].grow(p.min, p.max);
+    // Horizontal phase: a large node's binning and partition spread over the threads.
+    let horizontal =
+        |refs: &mut [PrimRef], flags: &mut [bool], r: &Range| -> Option<(Range, Range)> {
+            let (axis, cb_min, k0) = match plan(r, k, cfg, term) {
+                Plan::Leaf => return None,
+                Plan::Median(axis) => return Some(object_median(refs, r, axis)),
+                Plan::Bin { axis, cb_min, k0 } => (axis, cb_min, k0),
+            };
+            let chunk = tuning.chunk(r.len(), threads);
+            // Per-chunk bins merged afterwards: counts add and boxes take min/max, both exact, so
+            // the merged bins equal the sequential ones whatever the chunking.
+            let (count, bounds) = refs[r.begin..r.end]
+                .par_chunks(chunk)
+                .map(|ps| {
+                    let mut count = vec![0u32; k];
+                    let mut bounds = vec![BoxA::EMPTY; k];
+                    for p in ps {
+                        let b = bin_of(p.c[axis], cb_min, k0, k);
+                        count[b] += 1;
+                        bounds[b].grow(p.min, p.max);
+                    }
+                    (count, bounds)
+                })
+                .reduce_with(|mut a, b| {
+                    for i in 0..k {
+                        a.0[i] += b.0[i];
+                        a.1[i] = a.1[i].union(&b.1[i]);
+                    }
+                    a
+                })?;
+            let mut binner = Binner::new(k);
+            binner.count.copy_from_slice(&count);
+            binner.bounds.copy_from_slice(&bounds);
+            match decide(binner.sweep(), r, axis, cfg) {
+                Decision::Leaf => None,
+                Decision::Median(axis) => Some(object_median(refs, r, axis)),
+                Decision::Split(best) => {
+                    let last = best.last_left_bin;
+                    let f = &mut flags[r.begin..r.end];
+                    let (left, right) = partition_parallel(refs, r, f, chunk, |p| {
+                        bin_of(p.c[axis], cb_min, k0, k) <= last
+                    });
+                    debug_assert!(left.len() > 0 && right.len() > 0);
+                    Some((left, right))
                 }
-                (count, bounds)
-            })
-            .reduce_with(|mut a, b| {
-                for i in 0..k {
-                    a.0[i] += b.0[i];
-                    a.1[i] = a.1[i].union(&b.1[i]);
-                }
-                a
-            })?;
-        binner.count.copy_from_slice(&count);
-        binner.bounds.copy_from_slice(&bounds);
-        match decide(binner.sweep(), r, axis, cfg) {
-            Decision::Leaf => None,
-            Decision::Median(axis) => Some(object_median(refs, r, axis)),
-            Decision::Split(best) => {
-                let last = best.last_left_bin;
-                let f = &mut flags[r.begin..r.end];
-                let (left, right) = partition_parallel(refs, r, f, chunk, |p| {
-                    bin_of(p.c[axis], cb_min, k0, k) <= last
-                });
-                debug_assert!(left.len() > 0 && right.len() > 0);
-                Some((left, right))
             }
-        }
-    };
+        };
     // Vertical phase: each small subtree is the sequential builder on its own slice.
     let vertical = |refs: &mut [PrimRef], r: &Range| -> Vec<Node> {
         let mut binner = Binner::new(k);
