@@ -199,3 +199,43 @@ fn parallel_binned_terminates_on_non_finite_boxes() {
         }
     }
 }
+
+/// Geometrically spaced primitives make the top of the tree a long chain of large nodes (each
+/// split peels off the few farthest ones), deeper than the parallel driver's recursion limit
+/// (about 2 log2 n), so its explicit-stack fallback runs; the bytes must not change.
+#[test]
+fn deep_chain_of_large_nodes_is_byte_identical() {
+    let n = 300;
+    let boxes: Vec<Aabb> = (0..n)
+        .map(|i| {
+            let x = 1.3f32.powi(i);
+            Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 1.0))
+        })
+        .collect();
+    let centers = centers_of(&boxes);
+    let term = CentroidTermination::default();
+    let t = ParallelTuning {
+        vertical_min: 2,
+        min_chunk: 1,
+    };
+    for leaf in [1, 2] {
+        let cfg = TopDownConfig {
+            leaf,
+            ..Default::default()
+        };
+        let seq = binned_sah::build_with_termination(&boxes, &centers, 16, &cfg, term);
+        assert!(validate(&seq, &boxes).is_ok());
+        let cost = bvhlab_bvh::CostParams { c_t: 3.0, c_i: 2.0 };
+        let depth = bvhlab_bvh::metrics(&seq, cost).depth;
+        // The recursion limit for 300 primitives is 2 * 9 levels; inner nodes have >= 2 primitives.
+        assert!(depth > 20, "the scene must make a deep tree, depth {depth}");
+        for threads in [2, 3] {
+            let par = pool(threads)
+                .install(|| binned_sah::build_parallel_tuned(&boxes, &centers, 16, &cfg, term, t));
+            assert!(
+                par.canonical_bytes() == seq.canonical_bytes(),
+                "leaf {leaf} threads {threads}"
+            );
+        }
+    }
+}
