@@ -11,6 +11,7 @@
 
 pub mod aac;
 pub mod binned_sah;
+pub mod bonsai;
 pub mod bottomup;
 pub(crate) mod boxa;
 pub mod lbvh;

@@ -41,11 +41,14 @@ enum Cmd {
         /// Encoder for the bottom-up builders (lbvh, aac, ploc): morton (default), emc64-sort, emc64-var.
         #[arg(long)]
         encode: Option<String>,
-        /// Compaction after the build: `none` or `collapse`.
+        /// Optimizer run on the built BVH before compaction: ibo, kensler-hc, kensler-sa (or none).
+        #[arg(long)]
+        optimize: Option<String>,
+        /// Compaction after the build (and optimizer): `none` or `collapse`.
         #[arg(long, default_value = "none")]
         compact: String,
-        /// Builder, encoder or cost parameter, e.g. bins=16, leaf=1, radius=25, bits=10,
-        /// bounds=concise, c_t=3 (repeatable; routed by name).
+        /// Builder, encoder, optimizer or cost parameter, e.g. bins=16, leaf=1, radius=25, bits=10,
+        /// bounds=concise, measure=sum, pt=10, c_t=3 (repeatable; routed by name).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
         /// Ray set to trace: primary[:WxH], shadow[:WxH] or random[:COUNT].
@@ -77,7 +80,7 @@ enum Cmd {
     },
     /// List scene generators and their parameters.
     Scenes,
-    /// List builders and encoders with their parameters (defaults in brackets).
+    /// List builders, encoders and optimizers with their parameters (defaults in brackets).
     Methods,
 }
 
@@ -135,9 +138,10 @@ fn run(cli: Cli) -> Result<()> {
             println!("{summary}");
             Ok(())
         }
-        Cmd::Eval { scene, build, encode, compact, set, rays, focus, threads, repeat, cache, no_cache, json } => {
+        Cmd::Eval { scene, build, encode, optimize, compact, set, rays, focus, threads, repeat, cache, no_cache, json } => {
             let mut spec = ChainSpec::new(&scene, &build);
             spec.encode = encode;
+            spec.optimize = optimize.filter(|o| o != "none");
             spec.params = parse_sets(&set)?;
             spec.focus = focus.as_deref().map(bvhlab_pipeline::stages::parse_focus).transpose()?;
             spec.compact = compact;
@@ -160,7 +164,11 @@ fn run(cli: Cli) -> Result<()> {
                 println!("{v}");
             } else if let Some(o) = v.as_object() {
                 for (k, val) in o {
-                    println!("{k}: {val}");
+                    match (k.as_str(), val.as_array()) {
+                        // The per-pass trace is for plots and --json; one line here.
+                        ("optimize_trace", Some(a)) => println!("{k}: {} passes (see --json)", a.len().saturating_sub(1)),
+                        _ => println!("{k}: {val}"),
+                    }
                 }
             }
             Ok(())
@@ -235,6 +243,11 @@ fn run(cli: Cli) -> Result<()> {
             for e in &reg.encoders {
                 println!("  {}  {}", e.name, e.about);
                 e.params.iter().for_each(show);
+            }
+            println!("optimizers (--optimize; run after the build, before the compaction):");
+            for o in &reg.optimizers {
+                println!("  {}  {}", o.name, o.about);
+                o.params.iter().for_each(show);
             }
             Ok(())
         }

@@ -1,9 +1,9 @@
 //! Experiment files (TOML): scenes x chains (parameter grids, cartesian product) x ray sets.
 //! The format is documented at the top of experiments/quick.toml.
 //!
-//! A `[[chain]]` table's keys other than `build`, `compact` and `encode` are parameters, routed by
-//! name to the builder or the encoder (see `Registry::resolve_chain`). `encode` (value or array)
-//! is one more axis of the cartesian product. `[focus]` / `[focuses."SCENE"]` set a focus box.
+//! A `[[chain]]` table's keys other than `build`, `compact`, `encode` and `optimize` are parameters,
+//! routed by name to the builder, the encoder or the optimizer (see `Registry::resolve_chain`).
+//! `encode` and `optimize` (value or array) are more axes of the cartesian product. `[focus]` / `[focuses."SCENE"]` set a focus box.
 use crate::error::{Error, Result};
 use crate::registry::Registry;
 use crate::stages::{check_compact, focus_box, ChainSpec, RaySpec, SceneSource};
@@ -81,6 +81,8 @@ pub struct ChainPoint {
     pub build: String,
     /// Encoder (None: the builder's default, `morton`, for code-using builders).
     pub encode: Option<String>,
+    /// Optimizer run on the built tree, before the compaction (None: no optimize stage).
+    pub optimize: Option<String>,
     pub compact: String,
     pub params: BTreeMap<String, String>,
 }
@@ -222,11 +224,13 @@ impl Experiment {
                 let build = c.remove("build").unwrap_or_default();
                 let compact = c.remove("compact").unwrap_or_else(|| "none".into());
                 let encode = c.remove("encode");
+                // `optimize = ["none", "ibo"]` compares with and without an optimize stage.
+                let optimize = c.remove("optimize").filter(|o| o != "none");
                 check_compact(&compact).map_err(|e| err(e.message().to_string()))?;
                 registry
-                    .resolve_chain(&build, encode.as_deref(), &c, cost)
+                    .resolve_chain(&build, encode.as_deref(), optimize.as_deref(), &c, cost)
                     .map_err(|e| err(e.message().to_string()))?;
-                points.push(ChainPoint { build, encode, compact, params: c });
+                points.push(ChainPoint { build, encode, optimize, compact, params: c });
             }
         }
         let mut rays = Vec::new();
@@ -283,6 +287,7 @@ impl Experiment {
                         source: source.clone(),
                         build: p.build.clone(),
                         encode: p.encode.clone(),
+                        optimize: p.optimize.clone(),
                         params: p.params.clone(),
                         cost: self.cost,
                         compact: p.compact.clone(),
@@ -337,6 +342,7 @@ fov = 30
         assert_eq!(e.points[0], ChainPoint {
             build: "binned-sah".into(),
             encode: None,
+            optimize: None,
             compact: "none".into(),
             params: [("bins".to_string(), "4".to_string())].into()
         });
@@ -413,11 +419,11 @@ max = [16.0, 4.0, 16.0]
         assert!(!e.points[0].params.contains_key("encode"));
         let reg = Registry::standard();
         for p in &e.points[..4] {
-            let (b, enc) = reg.resolve_chain(&p.build, p.encode.as_deref(), &p.params, e.cost).unwrap();
+            let (b, enc) = reg.resolve_chain(&p.build, p.encode.as_deref(), None, &p.params, e.cost).unwrap().parts();
             assert!(b.params.contains_key("radius") && !b.params.contains_key("bounds"));
             assert_eq!(enc.unwrap().params["bounds"], "concise");
         }
-        let (_, enc) = reg.resolve_chain("aac", None, &e.points[4].params, e.cost).unwrap();
+        let (_, enc) = reg.resolve_chain("aac", None, None, &e.points[4].params, e.cost).unwrap().parts();
         assert_eq!(enc.unwrap().params["bits"], "8");
         let chains = e.chains();
         let outlier = chains.iter().find(|c| c.scene == "gen:outlier:e=20").unwrap();

@@ -53,6 +53,9 @@ impl Resolved {
     pub fn f32(&self, name: &str) -> f32 {
         self.params.get(name).and_then(|v| v.parse().ok()).unwrap_or(0.0)
     }
+    pub fn flag(&self, name: &str) -> bool {
+        self.params.get(name).map(String::as_str) == Some("true")
+    }
     pub fn config(&self) -> TopDownConfig {
         TopDownConfig { leaf: self.u32("leaf"), cost: self.cost }
     }
@@ -155,6 +158,15 @@ impl BuilderInfo {
     /// A top-down builder over boxes and centres (no codes, no compaction, plain label).
     pub fn top_down(name: &'static str, about: &'static str, params: Vec<ParamSpec>, run: BuildFn) -> BuilderInfo {
         BuilderInfo { name, about, params, run, codes: None, collapse: false, finish: None, label: None }
+    }
+
+    pub fn with_finish(mut self, f: FinishFn) -> BuilderInfo {
+        self.finish = Some(f);
+        self
+    }
+    pub fn with_label(mut self, f: LabelFn) -> BuilderInfo {
+        self.label = Some(f);
+        self
     }
 
     /// What the build stage produces: the builder, then (bottom-up builders) the SAH compaction.
@@ -295,6 +307,26 @@ fn aac_finish(raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, Stri
     Ok(())
 }
 
+/// Bonsai: `t` only matters with `prune=true`; without pruning it is dropped from the key, so
+/// BP0 has one spelling.
+fn bonsai_finish(_raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, String>) -> Result<(), String> {
+    if params.get("prune").map(String::as_str) != Some("true") {
+        params.remove("t");
+    }
+    Ok(())
+}
+
+fn bonsai_label(r: &Resolved) -> String {
+    let mut s = format!("bonsai n={}", r.u32("n"));
+    if r.flag("prune") {
+        s.push_str(&format!(" prune t={}", r.params.get("t").cloned().unwrap_or_default()));
+    }
+    if r.params.get("leaf").map(String::as_str) != Some(LEAF.default) {
+        s.push_str(&format!(" leaf={}", r.u32("leaf")));
+    }
+    s
+}
+
 fn aac_label(r: &Resolved) -> String {
     let c = r.aac_config();
     if c == AacConfig::HQ {
@@ -306,10 +338,141 @@ fn aac_label(r: &Resolved) -> String {
     }
 }
 
+/// Runs an optimizer on a built BVH with its resolved parameters.
+pub type OptimizeFn = fn(&Bvh, &ResolvedOptimizer) -> bvhlab_opt::Optimized;
+
+#[derive(Clone)]
+pub struct OptimizerInfo {
+    pub name: &'static str,
+    pub about: &'static str,
+    pub params: Vec<ParamSpec>,
+    pub run: OptimizeFn,
+    pub finish: Option<FinishFn>,
+}
+
+/// An optimizer with its parameters resolved (canonical strings, defaults included) and the chain's
+/// cost constants (the optimizers minimize thesis eq. 4 with the same c_T / c_I).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ResolvedOptimizer {
+    pub optimizer: String,
+    pub params: BTreeMap<String, String>,
+    pub cost: CostParams,
+}
+
+impl ResolvedOptimizer {
+    pub fn u32(&self, name: &str) -> u32 {
+        self.params.get(name).and_then(|v| v.parse().ok()).unwrap_or(0)
+    }
+    pub fn f64(&self, name: &str) -> f64 {
+        self.params.get(name).and_then(|v| v.parse().ok()).unwrap_or(0.0)
+    }
+    pub fn flag(&self, name: &str) -> bool {
+        self.params.get(name).map(String::as_str) == Some("true")
+    }
+    /// `max_seconds > 0`: the result may depend on machine speed.
+    pub fn time_capped(&self) -> bool {
+        self.f64("max_seconds") > 0.0
+    }
+    pub fn ibo_config(&self) -> bvhlab_opt::ibo::IboConfig {
+        bvhlab_opt::ibo::IboConfig {
+            measure: self.params.get("measure").and_then(|m| bvhlab_opt::ibo::Measure::parse(m)).unwrap_or(bvhlab_opt::ibo::Measure::Comb),
+            frac: self.f64("ibo_frac") as f32,
+            pt: self.u32("pt"),
+            pr: self.u32("pr"),
+            max_passes: self.u32("max_passes"),
+            max_seconds: self.f64("max_seconds"),
+            keep_best: self.flag("keep_best"),
+            seed: self.u32("seed") as u64,
+            cost: self.cost,
+        }
+    }
+    pub fn kensler_config(&self, anneal: bool) -> bvhlab_opt::kensler::KenslerConfig {
+        bvhlab_opt::kensler::KenslerConfig {
+            anneal,
+            t0: self.f64("t0"),
+            cooling: self.f64("cooling"),
+            max_passes: self.u32("max_passes"),
+            max_seconds: self.f64("max_seconds"),
+            keep_best: self.flag("keep_best"),
+            seed: self.u32("seed") as u64,
+            cost: self.cost,
+        }
+    }
+}
+
+/// One chain's resolved builder, encoder (code-using builders) and optimizer.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ResolvedChain {
+    pub build: Resolved,
+    pub encoder: Option<ResolvedEncoder>,
+    pub optimizer: Option<ResolvedOptimizer>,
+}
+
+impl ResolvedChain {
+    /// Builder and encoder (for callers that take no optimizer).
+    pub fn parts(self) -> (Resolved, Option<ResolvedEncoder>) {
+        (self.build, self.encoder)
+    }
+}
+
+const MAX_PASSES: ParamSpec = ParamSpec {
+    name: "max_passes",
+    default: "0",
+    kind: Kind::UInt { min: 0, max: u32::MAX },
+    about: "stop after this many passes (0 = no limit)",
+    in_label: false,
+};
+
+const MAX_SECONDS: ParamSpec = ParamSpec {
+    name: "max_seconds",
+    default: "0",
+    kind: Kind::NonNegativeFloat,
+    about: "stop after this many seconds (0 = no limit); a run stopped by it depends on machine speed",
+    in_label: false,
+};
+
+const KEEP_BEST: ParamSpec = ParamSpec {
+    name: "keep_best",
+    default: "true",
+    kind: Kind::Choice(&["true", "false"]),
+    about: "return the best tree seen, not the last (fixes the oscillation of thesis 5.2.1)",
+    in_label: false,
+};
+
+const SEED: ParamSpec = ParamSpec {
+    name: "seed",
+    default: "1",
+    kind: Kind::UInt { min: 0, max: u32::MAX },
+    about: "seed of the random choices",
+    in_label: false,
+};
+
+/// ibo: p_R <= p_T (Bittner 2013 section 3.5).
+fn ibo_finish(_raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, String>) -> Result<(), String> {
+    let get = |k: &str| params.get(k).and_then(|v| v.parse::<u32>().ok()).unwrap_or(0);
+    if get("pr") > get("pt") {
+        return Err(format!("pr={} must not exceed pt={} (Bittner 2013 3.5: p_R <= p_T)", get("pr"), get("pt")));
+    }
+    if params.get("measure").map(String::as_str) == Some("random") {
+        // Random sampling has nothing to switch to.
+        params.insert("pr".into(), "0".into());
+    }
+    Ok(())
+}
+
+fn kensler_sa_finish(_raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, String>) -> Result<(), String> {
+    let c: f64 = params.get("cooling").and_then(|v| v.parse().ok()).unwrap_or(0.0);
+    if !(c > 0.0 && c < 1.0) {
+        return Err(format!("cooling={c} must be in (0, 1)"));
+    }
+    Ok(())
+}
+
 #[derive(Clone)]
 pub struct Registry {
     pub builders: Vec<BuilderInfo>,
     pub encoders: Vec<EncoderInfo>,
+    pub optimizers: Vec<OptimizerInfo>,
 }
 
 impl Default for Registry {
@@ -320,7 +483,91 @@ impl Default for Registry {
 
 impl Registry {
     pub fn standard() -> Registry {
-        Registry { builders: Self::standard_builders(), encoders: Self::standard_encoders() }
+        Registry {
+            builders: Self::standard_builders(),
+            encoders: Self::standard_encoders(),
+            optimizers: Self::standard_optimizers(),
+        }
+    }
+
+    pub fn standard_optimizers() -> Vec<OptimizerInfo> {
+        vec![
+            OptimizerInfo {
+                name: "ibo",
+                about: "insertion-based optimization: remove a node's children, reinsert each where the cost grows \
+                        least (Bittner et al. 2013; thesis 3.4)",
+                params: vec![
+                    ParamSpec {
+                        name: "measure",
+                        default: "comb",
+                        kind: Kind::Choice(&["sum", "min", "area", "comb", "random"]),
+                        about: "node inefficiency measure selecting the nodes of a pass (Bittner 2013 3.4)",
+                        in_label: true,
+                    },
+                    ParamSpec {
+                        name: "ibo_frac",
+                        default: "0.01",
+                        kind: Kind::PositiveFloat,
+                        about: "fraction of the inner nodes updated per pass (k = 1%)",
+                        in_label: false,
+                    },
+                    ParamSpec {
+                        name: "pt",
+                        default: "10",
+                        kind: Kind::UInt { min: 1, max: 1 << 20 },
+                        about: "stop after p_T passes without improving the cost (Bittner 2013 3.5)",
+                        in_label: false,
+                    },
+                    ParamSpec {
+                        name: "pr",
+                        default: "5",
+                        kind: Kind::UInt { min: 0, max: 1 << 20 },
+                        about: "switch to random sampling after p_R passes without improvement (0: never)",
+                        in_label: false,
+                    },
+                    MAX_PASSES,
+                    MAX_SECONDS,
+                    KEEP_BEST,
+                    SEED,
+                ],
+                run: |bvh, r| bvhlab_opt::ibo::optimize(bvh, &r.ibo_config()),
+                finish: Some(ibo_finish),
+            },
+            OptimizerInfo {
+                name: "kensler-hc",
+                about: "tree rotations, hill climbing: apply the best improving rotation at each node until a pass \
+                        finds none (Kensler 2008)",
+                params: vec![MAX_PASSES, MAX_SECONDS, KEEP_BEST, SEED],
+                run: |bvh, r| bvhlab_opt::kensler::optimize(bvh, &r.kensler_config(false)),
+                finish: None,
+            },
+            OptimizerInfo {
+                name: "kensler-sa",
+                about: "tree rotations, simulated annealing (Kensler 2008); capped by max_passes / max_seconds",
+                params: vec![
+                    ParamSpec {
+                        name: "t0",
+                        default: "0.01",
+                        kind: Kind::PositiveFloat,
+                        about: "start temperature, relative to the root surface area",
+                        in_label: false,
+                    },
+                    ParamSpec {
+                        name: "cooling",
+                        default: "0.9",
+                        kind: Kind::PositiveFloat,
+                        about: "temperature factor per pass, in (0, 1)",
+                        in_label: false,
+                    },
+                    ParamSpec { default: "100", ..MAX_PASSES },
+                    ParamSpec { default: "600", ..MAX_SECONDS },
+                    KEEP_BEST,
+                    SEED,
+                ],
+                run: |bvh, r| bvhlab_opt::kensler::optimize(bvh, &r.kensler_config(true)),
+                finish: Some(kensler_sa_finish),
+            },
+        ]
     }
 
     pub fn standard_builders() -> Vec<BuilderInfo> {
@@ -369,6 +616,87 @@ impl Registry {
                     build_parallel(b, c, r.u32("bins"), &r.config(), stop)
                 },
             ),
+            BuilderInfo::top_down(
+                "bonsai",
+                "Bonsai: spatial-median mini-tree sets of at most n, full-sweep SAH mini trees in parallel, optional \
+                 pruning, full-sweep SAH top tree (Ganestam et al. 2015; thesis 3.3)",
+                vec![
+                    ParamSpec {
+                        name: "n",
+                        default: "512",
+                        kind: Kind::UInt { min: 2, max: 1 << 24 },
+                        about: "primitive set size threshold N (thesis table 3: 512 or 4096)",
+                        in_label: true,
+                    },
+                    ParamSpec {
+                        name: "t",
+                        default: "0.1",
+                        kind: Kind::PositiveFloat,
+                        about: "pruning threshold T, times the mean mini-tree area (thesis 3.3.3: 0.1 or 0.01)",
+                        in_label: false,
+                    },
+                    ParamSpec {
+                        name: "prune",
+                        default: "false",
+                        kind: Kind::Choice(&["true", "false"]),
+                        about: "prune mini trees larger than T times the mean (thesis 3.3.3)",
+                        in_label: true,
+                    },
+                    LEAF,
+                ],
+                |b, c, _, r| {
+                    let cfg = bvhlab_build::bonsai::BonsaiConfig {
+                        n: r.u32("n"),
+                        t: r.f32("t"),
+                        prune: r.flag("prune"),
+                        top: r.config(),
+                    };
+                    bvhlab_build::bonsai::build(b, c, &cfg)
+                },
+            )
+            .with_finish(bonsai_finish)
+            .with_label(bonsai_label),
+            BuilderInfo {
+                name: "incremental",
+                about: "insertion of primitives in input order with branch-and-bound search and an optimization pass \
+                        per batch (Bittner et al. 2015; thesis 3.5.1); one primitive per leaf: add compact = \"collapse\"",
+                params: vec![
+                    ParamSpec {
+                        name: "batch",
+                        default: "8000",
+                        kind: Kind::UInt { min: 1, max: u32::MAX },
+                        about: "primitives inserted between optimization passes (thesis table 5)",
+                        in_label: false,
+                    },
+                    ParamSpec {
+                        name: "ofrac",
+                        default: "0.01",
+                        kind: Kind::PositiveFloat,
+                        about: "fraction of the touched inner nodes optimized after each batch (thesis table 5)",
+                        in_label: false,
+                    },
+                    ParamSpec {
+                        name: "coh",
+                        default: "1.5",
+                        kind: Kind::NonNegativeFloat,
+                        about: "coherence threshold R_max of thesis eq. 13 (0 disables clustering)",
+                        in_label: false,
+                    },
+                ],
+                run: |b, _, _, r| {
+                    let cfg = bvhlab_opt::incremental::IncConfig {
+                        batch: r.u32("batch"),
+                        ofrac: r.f32("ofrac"),
+                        coh: r.f32("coh"),
+                        cost: r.cost,
+                    };
+                    bvhlab_opt::incremental::build(b, &cfg)
+                },
+                codes: None,
+                collapse: false,
+                finish: None,
+                label: None,
+            },
             BuilderInfo {
                 name: "lbvh",
                 about: "LBVH: binary radix tree over sorted codes (Karras 2012; thesis 2.3.4), then SAH compaction",
@@ -583,48 +911,121 @@ impl Registry {
         Ok(ResolvedEncoder { encoder: encoder.to_string(), params, config, cell_frame })
     }
 
-    /// Resolves one chain's builder and (for code-using builders) encoder; `raw` holds the
-    /// parameters of both, routed by name. `encode` given for a top-down builder is an error.
+    pub fn optimizer_names(&self) -> Vec<&'static str> {
+        self.optimizers.iter().map(|o| o.name).collect()
+    }
+
+    pub fn optimizer(&self, name: &str) -> Result<&OptimizerInfo> {
+        self.optimizers.iter().find(|o| o.name == name).ok_or_else(|| {
+            Error::input(format!("unknown optimizer `{name}`; valid optimizers: {}", self.optimizer_names().join(", ")))
+        })
+    }
+
+    /// Validates an optimizer's parameters (defaults filled in, canonical strings).
+    pub fn resolve_optimizer(&self, name: &str, raw: &BTreeMap<String, String>, cost: CostParams) -> Result<ResolvedOptimizer> {
+        let info = self.optimizer(name)?;
+        for k in raw.keys() {
+            if !info.params.iter().any(|p| p.name == k) {
+                return Err(Error::input(format!(
+                    "unknown parameter `{k}` for optimizer `{name}`; valid parameters: {}",
+                    names(&info.params)
+                )));
+            }
+        }
+        let mut params = BTreeMap::new();
+        for spec in &info.params {
+            let given = raw.get(spec.name).map(String::as_str).unwrap_or(spec.default);
+            let v = canonical(spec, given, None).map_err(|want| {
+                Error::input(format!("bad value `{given}` for `{}` of optimizer `{name}`: expected {want}", spec.name))
+            })?;
+            params.insert(spec.name.to_string(), v);
+        }
+        if let Some(finish) = info.finish {
+            finish(raw, &mut params).map_err(|why| Error::input(format!("optimizer `{name}`: {why}")))?;
+        }
+        Ok(ResolvedOptimizer { optimizer: name.to_string(), params, cost })
+    }
+
+    /// Optimizer label: `ibo comb`, plus parameters changed from their defaults.
+    pub fn optimizer_label(&self, o: &ResolvedOptimizer) -> String {
+        let mut parts = vec![o.optimizer.clone()];
+        if let Ok(info) = self.optimizer(&o.optimizer) {
+            for spec in &info.params {
+                let Some(v) = o.params.get(spec.name) else { continue };
+                if spec.in_label {
+                    parts.push(v.clone());
+                } else if v != spec.default && !(spec.name == "pr" && v == "0") {
+                    parts.push(format!("{}={v}", spec.name));
+                }
+            }
+        }
+        parts.join(" ")
+    }
+
+    /// Resolves one chain's builder, encoder (code-using builders only) and optimizer; `raw` holds
+    /// the parameters of all three, routed by name (builder first, then encoder, then optimizer).
+    /// `encode` given for a top-down builder is an error.
     pub fn resolve_chain(
         &self,
         builder: &str,
         encode: Option<&str>,
+        optimize: Option<&str>,
         raw: &BTreeMap<String, String>,
         cost: CostParams,
-    ) -> Result<(Resolved, Option<ResolvedEncoder>)> {
+    ) -> Result<ResolvedChain> {
         let info = self.get(builder)?;
-        let Some(auto) = info.codes else {
-            if let Some(e) = encode {
-                return Err(Error::input(format!(
-                    "builder `{builder}` is top-down and takes no codes, so `encode = \"{e}\"` does not apply; \
-                     encoders feed the bottom-up builders: {}",
-                    self.code_builder_names()
-                )));
-            }
-            return Ok((self.resolve(builder, raw, cost)?, None));
+        if let (None, Some(e)) = (info.codes, encode) {
+            return Err(Error::input(format!(
+                "builder `{builder}` is top-down and takes no codes, so `encode = \"{e}\"` does not apply; \
+                 encoders feed the bottom-up builders: {}",
+                self.code_builder_names()
+            )));
+        }
+        let einfo = match info.codes {
+            Some(_) => Some(self.encoder(encode.unwrap_or("morton"))?),
+            None => None,
         };
-        let encoder = encode.unwrap_or("morton");
-        let einfo = self.encoder(encoder)?;
-        let (mut braw, mut eraw) = (BTreeMap::new(), BTreeMap::new());
+        let oinfo = optimize.map(|o| self.optimizer(o)).transpose()?;
+        let (mut braw, mut eraw, mut oraw) = (BTreeMap::new(), BTreeMap::new(), BTreeMap::new());
         for (k, v) in raw {
             if info.params.iter().chain(COST_PARAMS.iter()).any(|p| p.name == k) {
                 braw.insert(k.clone(), v.clone());
-            } else if einfo.params.iter().any(|p| p.name == k) {
+            } else if einfo.is_some_and(|e| e.params.iter().any(|p| p.name == k)) {
                 eraw.insert(k.clone(), v.clone());
+            } else if oinfo.is_some_and(|o| o.params.iter().any(|p| p.name == k)) {
+                oraw.insert(k.clone(), v.clone());
             } else {
                 let mut bp: Vec<&str> = info.params.iter().map(|p| p.name).collect();
                 bp.extend(COST_PARAMS.iter().map(|p| p.name));
-                return Err(Error::input(format!(
-                    "unknown parameter `{k}` for builder `{builder}` with encoder `{encoder}`; builder parameters: {}; \
-                     encoder parameters: {}",
-                    bp.join(", "),
-                    names(&einfo.params)
-                )));
+                let mut msg = format!("unknown parameter `{k}` for builder `{builder}`");
+                if let Some(e) = einfo {
+                    msg.push_str(&format!(" with encoder `{}`", e.name));
+                }
+                if let Some(o) = oinfo {
+                    msg.push_str(&format!(" and optimizer `{}`", o.name));
+                }
+                msg.push_str(&format!("; builder parameters: {}", bp.join(", ")));
+                if let Some(e) = einfo {
+                    msg.push_str(&format!("; encoder parameters: {}", names(&e.params)));
+                }
+                if let Some(o) = oinfo {
+                    msg.push_str(&format!("; optimizer parameters: {}", names(&o.params)));
+                }
+                if einfo.is_none() && self.encoders.iter().any(|e| e.params.iter().any(|p| p.name == k)) {
+                    msg.push_str(&format!(" (`{k}` is an encoder parameter; `{builder}` is top-down and takes no codes)"));
+                } else if oinfo.is_none() && self.optimizers.iter().any(|o| o.params.iter().any(|p| p.name == k)) {
+                    msg.push_str(&format!(" (`{k}` is an optimizer parameter; name the optimizer with `optimize`)"));
+                }
+                return Err(Error::input(msg));
             }
         }
-        let r = self.resolve(builder, &braw, cost)?;
-        let e = self.resolve_encoder(encoder, &eraw, auto)?;
-        Ok((r, Some(e)))
+        let build = self.resolve(builder, &braw, cost)?;
+        let encoder = match (info.codes, einfo) {
+            (Some(auto), Some(e)) => Some(self.resolve_encoder(e.name, &eraw, auto)?),
+            _ => None,
+        };
+        let optimizer = oinfo.map(|o| self.resolve_optimizer(o.name, &oraw, build.cost)).transpose()?;
+        Ok(ResolvedChain { build, encoder, optimizer })
     }
 }
 
@@ -693,7 +1094,7 @@ mod tests {
     fn encoder_routing_and_auto_bits() {
         let r = Registry::standard();
         let c = CostParams::default();
-        let (b, e) = r.resolve_chain("ploc", None, &raw(&[("radius", "25"), ("bounds", "concise")]), c).unwrap();
+        let (b, e) = r.resolve_chain("ploc", None, None, &raw(&[("radius", "25"), ("bounds", "concise")]), c).unwrap().parts();
         let e = e.unwrap();
         assert_eq!(crate::key::params_string(&b.params), "radius=25");
         assert_eq!(e.encoder, "morton");
@@ -701,44 +1102,45 @@ mod tests {
         assert_eq!(e.config.bits, Bits::Auto(AutoFor::Ploc));
         assert_eq!(e.config.bounds, BoundsMode::Concise);
         assert_eq!(r.encoder_label(&e), "morton bounds=concise");
-        let (_, e) = r.resolve_chain("aac", Some("morton"), &raw(&[("bits", "auto")]), c).unwrap();
+        let (_, e) = r.resolve_chain("aac", Some("morton"), None, &raw(&[("bits", "auto")]), c).unwrap().parts();
         assert_eq!(e.as_ref().unwrap().params["bits"], "auto:aac");
-        let (_, e) = r.resolve_chain("lbvh", Some("morton"), &raw(&[("bits", "10"), ("grid_bits", "9")]), c).unwrap();
+        let (_, e) = r.resolve_chain("lbvh", Some("morton"), None, &raw(&[("bits", "10"), ("grid_bits", "9")]), c).unwrap().parts();
         let e = e.unwrap();
         assert_eq!((e.config.bits, e.config.grid_bits), (Bits::Fixed(10), 9));
         assert_eq!(r.encoder_label(&e), "morton bits=10 grid_bits=9");
         assert_eq!(e.cell_frame, CellFrame::Lattice);
         let (_, t) = r
-            .resolve_chain("lbvh", Some("emc64-var"), &raw(&[("grid_bits", "9"), ("grid_frame", "tight")]), c)
-            .unwrap();
+            .resolve_chain("lbvh", Some("emc64-var"), None, &raw(&[("grid_bits", "9"), ("grid_frame", "tight")]), c)
+            .unwrap()
+            .parts();
         let t = t.unwrap();
         assert_eq!((t.cell_frame, r.encoder_label(&t).as_str()), (CellFrame::Tight, "emc64-var grid_bits=9 grid_frame=tight"));
         assert_eq!(crate::key::params_string(&t.params), "bounds=scene,grid_bits=9,grid_frame=tight");
-        let err = r.resolve_chain("lbvh", Some("morton"), &raw(&[("grid_frame", "tight")]), c).unwrap_err();
+        let err = r.resolve_chain("lbvh", Some("morton"), None, &raw(&[("grid_frame", "tight")]), c).unwrap_err();
         assert!(err.message().contains("grid_bits") && err.exit_code() == 2, "{err}");
         // EMC encoders have no bits; their key does not depend on the builder.
-        let (_, a) = r.resolve_chain("aac", Some("emc64-var"), &raw(&[]), c).unwrap();
-        let (_, p) = r.resolve_chain("ploc", Some("emc64-var"), &raw(&[]), c).unwrap();
+        let (_, a) = r.resolve_chain("aac", Some("emc64-var"), None, &raw(&[]), c).unwrap().parts();
+        let (_, p) = r.resolve_chain("ploc", Some("emc64-var"), None, &raw(&[]), c).unwrap().parts();
         assert_eq!(a.as_ref().unwrap().params, p.as_ref().unwrap().params);
         assert_eq!(a.unwrap().config, p.unwrap().config);
         // Top-down builders have no encoder.
-        assert_eq!(r.resolve_chain("binned-sah", None, &raw(&[]), c).unwrap().1, None);
+        assert_eq!(r.resolve_chain("binned-sah", None, None, &raw(&[]), c).unwrap().encoder, None);
     }
 
     #[test]
     fn encoder_errors() {
         let r = Registry::standard();
         let c = CostParams::default();
-        let e = r.resolve_chain("ploc", Some("emc64-var"), &raw(&[("bits", "10")]), c).unwrap_err();
+        let e = r.resolve_chain("ploc", Some("emc64-var"), None, &raw(&[("bits", "10")]), c).unwrap_err();
         assert!(e.message().contains("`bits`") && e.message().contains("bounds, grid_bits"), "{e}");
-        let e = r.resolve_chain("sweep-sah", Some("morton"), &raw(&[]), c).unwrap_err();
+        let e = r.resolve_chain("sweep-sah", Some("morton"), None, &raw(&[]), c).unwrap_err();
         assert!(e.message().contains("top-down") && e.message().contains("lbvh, aac, ploc"), "{e}");
-        let e = r.resolve_chain("sweep-sah", None, &raw(&[("bounds", "scene")]), c).unwrap_err();
+        let e = r.resolve_chain("sweep-sah", None, None, &raw(&[("bounds", "scene")]), c).unwrap_err();
         assert!(e.message().contains("encoder parameter"), "{e}");
-        let e = r.resolve_chain("lbvh", Some("hilbert"), &raw(&[]), c).unwrap_err();
+        let e = r.resolve_chain("lbvh", Some("hilbert"), None, &raw(&[]), c).unwrap_err();
         assert!(e.message().contains("emc64-sort") && e.exit_code() == 2, "{e}");
         for (k, v) in [("bits", "0"), ("bits", "22"), ("bits", "auto:ploc"), ("bounds", "box"), ("grid_bits", "7")] {
-            let e = r.resolve_chain("aac", None, &raw(&[(k, v)]), c).unwrap_err();
+            let e = r.resolve_chain("aac", None, None, &raw(&[(k, v)]), c).unwrap_err();
             assert!(e.message().contains(k) && e.exit_code() == 2, "{k}={v}: {e}");
         }
     }

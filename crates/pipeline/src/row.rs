@@ -48,8 +48,28 @@ pub struct ResultRow {
     /// one in sorted order (precision lost to quantization; Riemersma 2024).
     pub code_bits: Option<u32>,
     pub duplicate_code_fraction: Option<f64>,
-    /// encode_seconds + build_seconds: the whole construction, what thesis table 11 compares.
+    /// encode_seconds + build_seconds (+ optimize_seconds): the whole construction, what thesis
+    /// table 11 compares.
     pub total_build_seconds: f64,
+    /// SAH cost of the build stage's tree (before optimization and compaction).
+    pub build_sah_cost: Option<f64>,
+    /// Optimizer of the optimize stage (`ibo`, `kensler-hc`, `kensler-sa`), absent without one.
+    pub optimizer: Option<String>,
+    /// Canonical optimizer parameters, `k=v` joined by `,`.
+    pub optimize_params: Option<String>,
+    /// Median seconds of the optimize stage (included in `total_build_seconds`: Bittner 2013's
+    /// build_s is build plus optimization).
+    pub optimize_seconds: Option<f64>,
+    /// SAH cost right after the optimizer, before compaction (Bittner 2013's "cost"; `sah_cost` is
+    /// then its "ocost" when the chain compacts).
+    pub optimized_sah_cost: Option<f64>,
+    /// Optimization passes run (pass 0, the input, not counted).
+    pub optimize_passes: Option<u32>,
+    /// Why the optimizer stopped: `converged`, `max_passes` or `max_seconds` (the last is not
+    /// reproducible bit for bit).
+    pub optimize_stop: Option<String>,
+    /// Pass-by-pass trace (pass, seconds, sah_cost, moved, phase) for the convergence plots.
+    pub optimize_trace: Option<Vec<bvhlab_opt::PassRecord>>,
     /// Worker threads the stages ran with (rayon pool size); timings depend on it, results do not.
     pub threads: u32,
     /// Focus-box metrics (experiment `[focus]`, for scenes whose interesting part is dwarfed by an

@@ -6,7 +6,7 @@
 //! once per run, as `computed` or `cached` (read from disk).
 use crate::error::{Error, Result};
 use crate::key::{params_string, stage_key, Key};
-use crate::registry::{fmt_f32, Registry, Resolved, ResolvedEncoder};
+use crate::registry::{fmt_f32, Registry, Resolved, ResolvedEncoder, ResolvedOptimizer};
 use crate::stages::*;
 use crate::store::{now_unix, Machine, Manifest, Store};
 use crate::ResultRow;
@@ -60,9 +60,11 @@ struct Plan {
     resolved: Resolved,
     /// Encoder of a code-using builder.
     encoder: Option<ResolvedEncoder>,
+    optimizer: Option<ResolvedOptimizer>,
     load: NodeDef,
     encode: Option<NodeDef>,
     build: NodeDef,
+    optimize: Option<NodeDef>,
     compact: Option<NodeDef>,
     measure: Option<(NodeDef, RaySpec)>,
     focus: Option<NodeDef>,
@@ -71,7 +73,21 @@ struct Plan {
 #[derive(Clone, Copy, PartialEq)]
 enum Which {
     Build,
+    Optimize,
     Compact,
+}
+
+impl Plan {
+    /// The stage whose BVH is final (what measure and focus read).
+    fn final_which(&self) -> Which {
+        if self.compact.is_some() {
+            Which::Compact
+        } else if self.optimize.is_some() {
+            Which::Optimize
+        } else {
+            Which::Build
+        }
+    }
 }
 
 pub struct Runner {
@@ -87,6 +103,7 @@ pub struct Runner {
     bvh_sums: HashMap<Key, BvhSummary>,
     encodings: HashMap<Key, Arc<EncodeArtifact>>,
     encode_sums: HashMap<Key, EncodeSummary>,
+    opt_infos: HashMap<Key, OptimizeInfo>,
     file_hashes: HashMap<PathBuf, String>,
 }
 
@@ -113,6 +130,7 @@ impl Runner {
             bvh_sums: HashMap::new(),
             encodings: HashMap::new(),
             encode_sums: HashMap::new(),
+            opt_infos: HashMap::new(),
             file_hashes: HashMap::new(),
         }
     }
@@ -155,8 +173,14 @@ impl Runner {
             return Err(Error::input("repeat must be at least 1"));
         }
         check_compact(&spec.compact)?;
-        let (resolved, encoder) =
-            self.registry.resolve_chain(&spec.build, spec.encode.as_deref(), &spec.params, spec.cost)?;
+        let chain = self.registry.resolve_chain(
+            &spec.build,
+            spec.encode.as_deref(),
+            spec.optimize.as_deref(),
+            &spec.params,
+            spec.cost,
+        )?;
+        let (resolved, encoder, optimizer) = (chain.build, chain.encoder, chain.optimizer);
         let load_params: BTreeMap<String, String> = match &spec.source {
             SceneSource::Gen(g) => [param("gen", (self.ops.canonical_gen)(g)?)].into(),
             SceneSource::File(path) => {
@@ -191,6 +215,15 @@ impl Runner {
             build_inputs.push(("encode", e.key));
         }
         let build = NodeDef::new("build", self.versions.build, bp, build_inputs);
+        let optimize = optimizer.as_ref().map(|o| {
+            let mut p = o.params.clone();
+            p.insert("optimizer".into(), o.optimizer.clone());
+            p.insert("c_t".into(), fmt_f32(o.cost.c_t));
+            p.insert("c_i".into(), fmt_f32(o.cost.c_i));
+            p.insert("repeat".into(), spec.repeat.to_string());
+            NodeDef::new("optimize", self.versions.optimize, p, vec![("build", build.key)])
+        });
+        let before_compact = optimize.as_ref().unwrap_or(&build);
         let compact = (spec.compact != "none").then(|| {
             let p = [
                 param("method", &spec.compact),
@@ -199,10 +232,10 @@ impl Runner {
                 param("repeat", spec.repeat),
             ]
             .into();
-            NodeDef::new("compact", self.versions.compact, p, vec![("build", build.key)])
+            NodeDef::new("compact", self.versions.compact, p, vec![(before_compact.stage, before_compact.key)])
         });
         let measure = spec.rays.map(|rays| {
-            let final_node = compact.as_ref().unwrap_or(&build);
+            let final_node = compact.as_ref().unwrap_or(before_compact);
             let mut p: BTreeMap<String, String> = [
                 param("rays", rays.canonical()),
                 param("camera", spec.camera.as_ref().map(camera_canonical).unwrap_or_else(|| "auto".into())),
@@ -216,7 +249,7 @@ impl Runner {
             (NodeDef::new("measure", self.versions.measure, p, inputs), rays)
         });
         let focus = spec.focus.map(|b| {
-            let final_node = compact.as_ref().unwrap_or(&build);
+            let final_node = compact.as_ref().unwrap_or(before_compact);
             let p = [
                 param("box", focus_canonical(&b)),
                 param("c_t", fmt_f32(resolved.cost.c_t)),
@@ -226,7 +259,19 @@ impl Runner {
             let inputs = vec![("load", load.key), (final_node.stage, final_node.key)];
             NodeDef::new("focus", self.versions.focus, p, inputs)
         });
-        Ok(Plan { spec: spec.clone(), resolved, encoder, load, encode, build, compact, measure, focus })
+        Ok(Plan {
+            spec: spec.clone(),
+            resolved,
+            encoder,
+            optimizer,
+            load,
+            encode,
+            build,
+            optimize,
+            compact,
+            measure,
+            focus,
+        })
     }
 
     fn commit(&self, node: &NodeDef, files: BTreeMap<String, String>, seconds: f64) -> Result<()> {
@@ -410,6 +455,7 @@ impl Runner {
     fn node(plan: &Plan, which: Which) -> &NodeDef {
         match which {
             Which::Build => &plan.build,
+            Which::Optimize => plan.optimize.as_ref().expect("optimize node"),
             Which::Compact => plan.compact.as_ref().expect("compact node"),
         }
     }
@@ -435,8 +481,19 @@ impl Runner {
         let mut first: Option<(Bvh, blake3::Hash)> = None;
         let input = match which {
             Which::Build => None,
-            Which::Compact => Some(self.bvh_full(plan, Which::Build)?),
+            Which::Optimize => Some(self.bvh_full(plan, Which::Build)?),
+            Which::Compact => {
+                Some(self.bvh_full(plan, if plan.optimize.is_some() { Which::Optimize } else { Which::Build })?)
+            }
         };
+        let optimizer = match which {
+            Which::Optimize => {
+                let o = plan.optimizer.clone().ok_or_else(|| Error::internal("chain has no optimizer"))?;
+                Some((self.registry.optimizer(&o.optimizer)?.run, o))
+            }
+            _ => None,
+        };
+        let mut opt_info: Option<OptimizeInfo> = None;
         let encoding = match (which, &plan.encode) {
             (Which::Build, Some(_)) => Some(self.encode_full(plan)?),
             _ => None,
@@ -454,8 +511,8 @@ impl Runner {
             // Only the method itself is timed; boxes and centres are shared input preparation.
             // Bottom-up builders include their SAH compaction (thesis: part of AAC / PLOC).
             let t = Instant::now();
-            let bvh = match &input {
-                None => {
+            let bvh = match (&input, &optimizer) {
+                (None, _) => {
                     let bvh = (info.run)(&boxes, &centers, codes.as_ref(), &plan.resolved);
                     if info.collapse {
                         (self.ops.collapse)(&bvh, cost)
@@ -463,12 +520,27 @@ impl Runner {
                         bvh
                     }
                 }
-                Some(built) => (self.ops.collapse)(&built.bvh, cost),
+                (Some(built), Some((run, o))) => {
+                    let out = run(&built.bvh, o);
+                    if opt_info.is_none() {
+                        opt_info = Some(OptimizeInfo {
+                            trace: out.trace,
+                            stop: out.stop.as_str().to_string(),
+                            returned_pass: out.returned_pass,
+                        });
+                    }
+                    out.bvh
+                }
+                (Some(built), None) => (self.ops.collapse)(&built.bvh, cost),
             };
             seconds.push(secs(t));
             let h = blake3::hash(&bvh.canonical_bytes());
+            // A time-capped optimizer stops wherever the clock says: its runs may differ, and the
+            // first run's tree is kept (the row says `optimize_stop = max_seconds`).
+            let time_capped = optimizer.as_ref().is_some_and(|(_, o)| o.time_capped());
             match &first {
                 None => first = Some((bvh, h)),
+                Some(_) if time_capped => {}
                 Some((_, h0)) if *h0 != h => {
                     return Err(Error::internal(format!(
                         "{} `{}` is not deterministic: run {} produced a different BVH than run 1 on {}",
@@ -496,6 +568,10 @@ impl Runner {
         let mut files = BTreeMap::new();
         files.insert("bin".into(), self.store.put(node.stage, &node.key, "bin", &art)?);
         files.insert("sum".into(), self.store.put(node.stage, &node.key, "sum", &art.summary)?);
+        if let Some(info) = opt_info {
+            files.insert("opt".into(), self.store.put(node.stage, &node.key, "opt", &info)?);
+            self.opt_infos.insert(node.key, info);
+        }
         self.commit(&node, files, secs(t0))?;
         self.note(node.stage, node.key, true);
         let art = Arc::new(art);
@@ -524,6 +600,31 @@ impl Runner {
         Ok(art.summary.clone())
     }
 
+    /// The optimize stage's trace and stop reason (read from `.opt`; recomputes the stage when that
+    /// file is missing or corrupt).
+    fn optimize_info(&mut self, plan: &Plan) -> Result<Option<OptimizeInfo>> {
+        let Some(node) = plan.optimize.clone() else { return Ok(None) };
+        if let Some(i) = self.opt_infos.get(&node.key) {
+            return Ok(Some(i.clone()));
+        }
+        if let Some(i) = self.cached::<OptimizeInfo>(&node, "opt") {
+            self.opt_infos.insert(node.key, i.clone());
+            return Ok(Some(i));
+        }
+        // Artifact present but its trace unreadable: drop the in-memory copy and recompute the stage.
+        self.bvhs.remove(&node.key);
+        let path = self.store.path("optimize", &node.key, "bin");
+        if path.exists() {
+            self.store.quarantine(&path);
+        }
+        self.bvh_full(plan, Which::Optimize)?;
+        self.opt_infos
+            .get(&node.key)
+            .cloned()
+            .map(Some)
+            .ok_or_else(|| Error::internal("optimize stage produced no trace"))
+    }
+
     // ---- measure ------------------------------------------------------------------------------
 
     fn measure(&mut self, plan: &Plan) -> Result<MeasureSummary> {
@@ -534,7 +635,7 @@ impl Runner {
         }
         let t0 = Instant::now();
         let scene = self.scene_full(plan)?;
-        let final_bvh = self.bvh_full(plan, if plan.compact.is_some() { Which::Compact } else { Which::Build })?;
+        let final_bvh = self.bvh_full(plan, plan.final_which())?;
         let bvh = &final_bvh.bvh;
         let tris = &scene.triangles;
         let bounds = scene.bounds();
@@ -602,7 +703,7 @@ impl Runner {
         }
         let t0 = Instant::now();
         let scene = self.scene_full(plan)?;
-        let final_bvh = self.bvh_full(plan, if plan.compact.is_some() { Which::Compact } else { Which::Build })?;
+        let final_bvh = self.bvh_full(plan, plan.final_which())?;
         let (boxes, centers) = scene.boxes_and_centers();
         // A triangle is in focus when its centroid (box centre, as the builders see it) is inside.
         let in_focus: Vec<bool> =
@@ -627,6 +728,11 @@ impl Runner {
         let scene = self.scene_summary(&plan)?;
         let encode = self.encode_summary(&plan)?;
         let build = self.bvh_summary(&plan, Which::Build)?;
+        let optimized = match plan.optimize {
+            Some(_) => Some(self.bvh_summary(&plan, Which::Optimize)?),
+            None => None,
+        };
+        let opt_info = self.optimize_info(&plan)?;
         let compact = match plan.compact {
             Some(_) => Some(self.bvh_summary(&plan, Which::Compact)?),
             None => None,
@@ -636,7 +742,7 @@ impl Runner {
             None => None,
         };
         let focus = self.focus(&plan)?;
-        let fin = compact.as_ref().unwrap_or(&build);
+        let fin = compact.as_ref().or(optimized.as_ref()).unwrap_or(&build);
         let m = &fin.metrics;
         let mut keys = BTreeMap::new();
         keys.insert("load".to_string(), plan.load.key.hex());
@@ -644,6 +750,9 @@ impl Runner {
             keys.insert("encode".to_string(), e.key.hex());
         }
         keys.insert("build".to_string(), plan.build.key.hex());
+        if let Some(o) = &plan.optimize {
+            keys.insert("optimize".to_string(), o.key.hex());
+        }
         if let Some(c) = &plan.compact {
             keys.insert("compact".to_string(), c.key.hex());
         }
@@ -656,6 +765,9 @@ impl Runner {
         let mut method = self.registry.label(&plan.resolved);
         if let Some(e) = &plan.encoder {
             method.push_str(&format!(" \u{b7} {}", self.registry.encoder_label(e)));
+        }
+        if let Some(o) = &plan.optimizer {
+            method.push_str(&format!(" +{}", self.registry.optimizer_label(o)));
         }
         if spec.compact != "none" {
             method.push_str(&format!(" +{}", spec.compact));
@@ -682,7 +794,7 @@ impl Runner {
             depth: m.depth,
             bytes: m.bytes,
             bytes_per_triangle: m.bytes as f64 / scene.triangles.max(1) as f64,
-            valid: build.valid && fin.valid,
+            valid: build.valid && optimized.as_ref().is_none_or(|o| o.valid) && fin.valid,
             bvh_hash: fin.bvh_hash.clone(),
             build_seconds: build.median_seconds,
             encoder: plan.encoder.as_ref().map(|e| e.encoder.clone()),
@@ -690,7 +802,17 @@ impl Runner {
             encode_seconds: encode.as_ref().map(|e| e.median_seconds),
             code_bits: encode.as_ref().map(|e| e.code_bits),
             duplicate_code_fraction: encode.as_ref().map(|e| e.duplicate_fraction),
-            total_build_seconds: encode.as_ref().map(|e| e.median_seconds).unwrap_or(0.0) + build.median_seconds,
+            total_build_seconds: encode.as_ref().map(|e| e.median_seconds).unwrap_or(0.0)
+                + build.median_seconds
+                + optimized.as_ref().map(|o| o.median_seconds).unwrap_or(0.0),
+            build_sah_cost: Some(build.metrics.sah_cost),
+            optimizer: plan.optimizer.as_ref().map(|o| o.optimizer.clone()),
+            optimize_params: plan.optimizer.as_ref().map(|o| params_string(&o.params)),
+            optimize_seconds: optimized.as_ref().map(|o| o.median_seconds),
+            optimized_sah_cost: optimized.as_ref().map(|o| o.metrics.sah_cost),
+            optimize_passes: opt_info.as_ref().map(|i| i.trace.len().saturating_sub(1) as u32),
+            optimize_stop: opt_info.as_ref().map(|i| i.stop.clone()),
+            optimize_trace: opt_info.map(|i| i.trace),
             threads: rayon::current_num_threads() as u32,
             focus_triangles: focus.as_ref().map(|f| f.triangles),
             focus_sah_cost: focus.as_ref().and_then(|f| f.sah_cost),

@@ -1,8 +1,10 @@
 //! Stage definitions: versions, the artifacts each stage stores, and the chain description.
 //!
 //! Stages: `load` (scene), `encode` (Morton / EMC codes and the sorted primitive order, for the
-//! bottom-up builders), `build` (BVH), `compact` (SAH collapse of the built BVH), `measure` (ray set
-//! traced through the final BVH), `focus` (SAH cost around a focus box in the final BVH). Bump a stage's version when its implementation changes
+//! bottom-up builders), `build` (BVH), `optimize` (ibo or Kensler rotations on the built BVH),
+//! `compact` (SAH collapse of the built or optimized BVH; after the optimizer, as Bittner 2013 3.6
+//! orders them), `measure` (ray set traced through the final BVH), `focus` (SAH cost around a
+//! focus box in the final BVH). Bump a stage's version when its implementation changes
 //! what it produces: its artifacts and everything downstream get new keys.
 use crate::error::{Error, Result};
 use bvhlab_bvh::{Aabb, Bvh, CostParams, Metrics};
@@ -18,6 +20,7 @@ pub const ENCODE_VERSION: u32 = 2;
 /// 2: bottom-up builders (lbvh, aac, ploc) and the reworked (parallel) binned SAH.
 pub const BUILD_VERSION: u32 = 2;
 pub const COMPACT_VERSION: u32 = 1;
+pub const OPTIMIZE_VERSION: u32 = 1;
 pub const MEASURE_VERSION: u32 = 1;
 pub const FOCUS_VERSION: u32 = 1;
 
@@ -28,6 +31,7 @@ pub struct Versions {
     pub encode: u32,
     pub build: u32,
     pub compact: u32,
+    pub optimize: u32,
     pub measure: u32,
     pub focus: u32,
 }
@@ -39,6 +43,7 @@ impl Default for Versions {
             encode: ENCODE_VERSION,
             build: BUILD_VERSION,
             compact: COMPACT_VERSION,
+            optimize: OPTIMIZE_VERSION,
             measure: MEASURE_VERSION,
             focus: FOCUS_VERSION,
         }
@@ -179,6 +184,8 @@ pub struct ChainSpec {
     pub build: String,
     /// Encoder for code-using builders (None: `morton`); an error with a top-down builder.
     pub encode: Option<String>,
+    /// Optimizer run on the built BVH before the compaction (`ibo`, `kensler-hc`, `kensler-sa`).
+    pub optimize: Option<String>,
     /// User-given parameters (builder params, c_t / c_i and encoder params, routed by name),
     /// validated by the registry.
     pub params: BTreeMap<String, String>,
@@ -202,6 +209,7 @@ impl ChainSpec {
             source: SceneSource::parse(scene),
             build: build.to_string(),
             encode: None,
+            optimize: None,
             params: BTreeMap::new(),
             cost: CostParams::default(),
             compact: "none".into(),
@@ -249,6 +257,18 @@ pub struct BvhSummary {
 pub struct BvhArtifact {
     pub bvh: Bvh,
     pub summary: BvhSummary,
+}
+
+/// What the optimize stage keeps beside its BVH (`optimize/<key>.opt`): the pass-by-pass trace the
+/// report draws convergence curves from, and why the optimizer stopped.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OptimizeInfo {
+    /// Trace of the first timed run (later runs repeat the same tree; only their times differ).
+    pub trace: Vec<bvhlab_opt::PassRecord>,
+    /// `converged`, `max_passes` or `max_seconds`.
+    pub stop: String,
+    /// Pass whose tree was returned (the best one with `keep_best`).
+    pub returned_pass: u32,
 }
 
 /// Summary of the encode stage (`encode/<key>.sum`).

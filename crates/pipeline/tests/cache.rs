@@ -5,7 +5,7 @@ use bvhlab_bvh::{Aabb, Bvh, CostParams, Metrics, Node, Vec3};
 use bvhlab_geom::{LoadError, Scene, Triangle};
 use bvhlab_build::SortedCodes;
 use bvhlab_morton::{AutoFor, Bits, EncodeConfig, Encoding, Scheme};
-use bvhlab_pipeline::registry::{BuilderInfo, Kind, ParamSpec, Resolved};
+use bvhlab_pipeline::registry::{BuilderInfo, Kind, OptimizerInfo, ParamSpec, Resolved, ResolvedOptimizer};
 use bvhlab_pipeline::stages::Ops;
 use bvhlab_pipeline::{ChainSpec, Counts, Key, Registry, ResultRow, Runner, Store, Versions};
 use std::path::Path;
@@ -122,8 +122,41 @@ fn test_runner(root: &Path, versions: Versions) -> Runner {
             code_builder("test-codes2", AutoFor::Ploc),
         ],
         encoders: Registry::standard_encoders(),
+        optimizers: vec![OptimizerInfo {
+            name: "test-opt",
+            about: "test double: reverses the leaf order `passes` times",
+            params: vec![ParamSpec {
+                name: "passes",
+                default: "2",
+                kind: Kind::UInt { min: 0, max: 9 },
+                about: "",
+                in_label: true,
+            }],
+            run: test_optimize,
+            finish: None,
+        }],
     };
     r
+}
+
+/// Optimizer double: a changed tree (prim order rotated) and a trace of `passes` passes.
+fn test_optimize(b: &Bvh, o: &ResolvedOptimizer) -> bvhlab_opt::Optimized {
+    let passes = o.u32("passes");
+    let mut bvh = b.clone();
+    bvh.prim_indices.rotate_left(1);
+    let rec = |pass: u32| bvhlab_opt::PassRecord {
+        pass,
+        seconds: 0.0,
+        sah_cost: 100.0 - pass as f64,
+        moved: pass as u64,
+        phase: "test".into(),
+    };
+    bvhlab_opt::Optimized {
+        bvh,
+        trace: (0..=passes).map(rec).collect(),
+        stop: bvhlab_opt::Stop::Converged,
+        returned_pass: passes,
+    }
 }
 
 /// 2 scenes x (bins 4 and 8) x (none, collapse).
@@ -162,6 +195,7 @@ fn untimed(rows: &[ResultRow]) -> Vec<ResultRow> {
             compact_seconds: 0.0,
             total_build_seconds: 0.0,
             encode_seconds: r.encode_seconds.map(|_| 0.0),
+            optimize_seconds: r.optimize_seconds.map(|_| 0.0),
             ..r.clone()
         })
         .collect()
@@ -495,4 +529,57 @@ fn focus_stage_is_cached_and_keyed_by_box() {
     let (rows2, c) = run_all(dir.path(), Versions::default(), &[a]);
     assert_eq!(stage(&c, "focus"), (1, 0));
     assert_ne!(rows2[0].keys["focus"], rows[0].keys["focus"]);
+}
+
+/// The optimize stage sits between build and compact: cached like the others, its trace read back
+/// from the cache, and an optimizer parameter re-runs only optimize and what follows.
+#[test]
+fn optimize_stage_is_cached_and_keyed() {
+    let dir = tempfile::tempdir().unwrap();
+    let mk = |passes: &str, compact: &str| {
+        let mut c = ChainSpec::new("gen:grid:n=40", "test-median");
+        c.optimize = Some("test-opt".into());
+        c.params.insert("passes".into(), passes.into());
+        c.compact = compact.into();
+        c.repeat = 2;
+        c
+    };
+    let ch = [mk("2", "none"), mk("2", "collapse")];
+    let (cold_rows, cold) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!((stage(&cold, "build"), stage(&cold, "optimize"), stage(&cold, "compact")), ((1, 0), (1, 0), (1, 0)));
+    let r = &cold_rows[1];
+    assert_eq!(r.optimizer.as_deref(), Some("test-opt"));
+    assert_eq!(r.optimize_params.as_deref(), Some("passes=2"));
+    assert_eq!(r.optimize_passes, Some(2));
+    assert_eq!(r.optimize_stop.as_deref(), Some("converged"));
+    assert_eq!(r.optimize_trace.as_ref().map(|t| t.len()), Some(3));
+    assert_eq!(r.method, "test-median bins=16 +test-opt 2 +collapse");
+    assert!(r.keys.contains_key("optimize"));
+    assert_ne!(cold_rows[0].bvh_hash, cold_rows[1].bvh_hash, "compaction reads the optimized tree");
+    assert_eq!(r.total_build_seconds, r.build_seconds + r.optimize_seconds.unwrap());
+    let (warm_rows, warm) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!(warm.computed, 0);
+    assert_eq!(warm_rows, cold_rows, "trace and rows come back from the cache");
+    // A new optimizer parameter: optimize and compact recompute, build is reused.
+    let (_, c) = run_all(dir.path(), Versions::default(), &[mk("3", "collapse")]);
+    assert_eq!((stage(&c, "build"), stage(&c, "optimize"), stage(&c, "compact")), ((0, 1), (1, 0), (1, 0)));
+    // A lost trace file recomputes the optimize stage, with a correct row.
+    for f in std::fs::read_dir(dir.path().join("optimize")).unwrap().flatten() {
+        if f.path().extension().is_some_and(|e| e == "opt") {
+            std::fs::remove_file(f.path()).unwrap();
+        }
+    }
+    let (rows, c) = run_all(dir.path(), Versions::default(), &ch[..1]);
+    assert_eq!(stage(&c, "optimize"), (1, 0));
+    assert_eq!(untimed(&rows), untimed(&cold_rows[..1]));
+    // Unknown optimizer parameters and optimizers are input errors naming the valid ones.
+    let mut bad = mk("2", "none");
+    bad.params.insert("pt".into(), "3".into());
+    let mut r = test_runner(dir.path(), Versions::default());
+    let e = r.run_chain(&bad, "t").unwrap_err();
+    assert!(e.message().contains("optimizer parameters: passes"), "{e}");
+    let mut bad = mk("2", "none");
+    bad.optimize = Some("annealing".into());
+    let e = r.run_chain(&bad, "t").unwrap_err();
+    assert!(e.message().contains("valid optimizers: test-opt"), "{e}");
 }

@@ -59,8 +59,11 @@ fn every_registered_builder_matches_brute_force() {
         let want = brute_force(&scene.triangles, &rays);
         for info in &reg.builders {
             if info.codes.is_none() {
-                for leaf in ["1", "2"] {
-                    let resolved = reg.resolve(info.name, &raw(&[("leaf", leaf)]), cost).unwrap();
+                // Builders without a leaf threshold (incremental: one primitive per leaf) run once.
+                let has_leaf = info.params.iter().any(|p| p.name == "leaf");
+                for leaf in if has_leaf { &["1", "2"][..] } else { &["1"][..] } {
+                    let params = if has_leaf { raw(&[("leaf", leaf)]) } else { raw(&[]) };
+                    let resolved = reg.resolve(info.name, &params, cost).unwrap();
                     let built = info.construct(&boxes, &centers, None, &resolved);
                     for (what, bvh) in [("built", built.clone()), ("collapsed", collapse(&built, cost))] {
                         check(&format!("{spec} {} leaf={leaf} {what}", info.name), &bvh, &scene, &boxes, &rays, &want);
@@ -69,7 +72,7 @@ fn every_registered_builder_matches_brute_force() {
                 continue;
             }
             for (enc, params) in ENCODERS {
-                let (resolved, encoder) = reg.resolve_chain(info.name, Some(enc), &raw(params), cost).unwrap();
+                let (resolved, encoder) = reg.resolve_chain(info.name, Some(enc), None, &raw(params), cost).unwrap().parts();
                 let encoder = encoder.expect("code builders have an encoder");
                 let e = bvhlab_morton::encode(&boxes, &centers, &encoder.config);
                 let codes = SortedCodes { order: &e.order, codes: &e.codes, code_bits: e.code_bits };
@@ -79,6 +82,42 @@ fn every_registered_builder_matches_brute_force() {
                 check(&format!("{ctx} raw"), &raw_tree, &scene, &boxes, &rays, &want);
                 let built = info.construct(&boxes, &centers, Some(&codes), &resolved);
                 check(&format!("{ctx} built"), &built, &scene, &boxes, &rays, &want);
+            }
+        }
+    }
+}
+
+/// Every registered optimizer on a poor (spatial median) and a good (sweep SAH) single-primitive-
+/// leaf tree and on a multi-primitive-leaf tree, then compacted: valid, same closest hits as brute
+/// force, never a worse tree than its input when `keep_best` is on (the default).
+#[test]
+fn every_registered_optimizer_matches_brute_force() {
+    let reg = Registry::standard();
+    let cost = CostParams::default();
+    let raw = |kv: &[(&str, &str)]| -> BTreeMap<String, String> {
+        kv.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
+    };
+    for spec in SCENES {
+        let scene = load_scene(spec).unwrap();
+        let (boxes, centers) = scene.boxes_and_centers();
+        let b = scene.bounds();
+        let radius = centers.iter().map(|c| (*c - b.center()).length()).fold(0.0, f32::max);
+        let rays = random_rays(&b, radius, 2000, 11);
+        let want = brute_force(&scene.triangles, &rays);
+        for (builder, leaf) in [("spatial-median", "1"), ("sweep-sah", "1"), ("binned-sah", "4")] {
+            let r = reg.resolve(builder, &raw(&[("leaf", leaf)]), cost).unwrap();
+            let built = reg.get(builder).unwrap().construct(&boxes, &centers, None, &r);
+            let before = bvhlab_bvh::metrics(&built, cost).sah_cost;
+            for info in &reg.optimizers {
+                // Bounded so the suite stays fast; convergence is the optimizers' own tests' job.
+                let o = reg.resolve_optimizer(info.name, &raw(&[("max_passes", "20")]), cost).unwrap();
+                let out = (info.run)(&built, &o);
+                let ctx = format!("{spec} {builder} leaf={leaf} {}", reg.optimizer_label(&o));
+                check(&ctx, &out.bvh, &scene, &boxes, &rays, &want);
+                check(&format!("{ctx} collapsed"), &collapse(&out.bvh, cost), &scene, &boxes, &rays, &want);
+                let after = bvhlab_bvh::metrics(&out.bvh, cost).sah_cost;
+                assert!(after <= before * (1.0 + 1e-9), "{ctx}: keep_best returned cost {after} > input {before}");
+                assert_eq!(out.trace.first().map(|p| p.pass), Some(0), "{ctx}: trace starts at pass 0");
             }
         }
     }
