@@ -3,12 +3,29 @@
 //! and the incremental builder ([`crate::incremental`]).
 use crate::tree::DynTree;
 use bvhlab_bvh::Aabb;
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
 
 /// Reusable buffers of [`find_best`] (the priority queue and the zero-cost bucket), so a pass of
 /// thousands of searches allocates once.
 #[derive(Default)]
 pub struct SearchScratch {
-    // owned by the ibo helper: priority queue, zero-priority bucket (thesis 3.4.2)
+    /// Entries with a positive induced cost, lowest first. Key: `induced.to_bits() << 32 | node`:
+    /// induced costs are never negative (SA(X ∪ L) >= SA(X) holds in f32 too, min/max are exact and
+    /// the area is monotone in the extents), so the bit pattern orders like the value, and equal
+    /// costs pop by node index (deterministic, no float comparison in the heap).
+    heap: BinaryHeap<Reverse<u64>>,
+    /// Entries with induced cost exactly 0 (the subtree of X already contains L's box up to the
+    /// root): the thesis' zero-priority bucket (3.4.2), a plain stack popped before the heap.
+    zero: Vec<u32>,
+    /// Nodes popped by the last search (for measurements).
+    pub visited: u64,
+}
+
+impl SearchScratch {
+    pub fn new() -> Self {
+        Self::default()
+    }
 }
 
 /// The node of `tree` (inner or leaf, reachable from the root) where inserting a subtree with box
@@ -16,23 +33,135 @@ pub struct SearchScratch {
 /// cost (the area growth of every ancestor of X). Returns (X_best, its total cost C_best).
 /// Ties go to the node found first in the search order, which is deterministic.
 ///
-/// Skeleton: exhaustive evaluation over every reachable node (correct, O(n · depth)); the
-/// branch-and-bound with the priority queue replaces it.
-pub fn find_best(tree: &DynTree, l: &Aabb, _scratch: &mut SearchScratch) -> (u32, f32) {
+/// Bittner 2013 algorithm 1: nodes are popped by lowest induced cost C_I (zero-cost bucket first,
+/// thesis 3.4.2); the search ends when the popped node's lower bound C_I + SA(L) cannot beat
+/// C_best (every queued entry has at least that bound); a node's children are queued only if
+/// their bound C_I(child) + SA(L) is below C_best. Areas in f32 (the search decides, the optimizer
+/// measures the cost in f64).
+pub fn find_best(tree: &DynTree, l: &Aabb, scratch: &mut SearchScratch) -> (u32, f32) {
+    let SearchScratch { heap, zero, visited } = scratch;
+    heap.clear();
+    zero.clear();
+    *visited = 0;
+    if tree.root == crate::tree::NONE {
+        return (crate::tree::NONE, f32::INFINITY);
+    }
+    let sa_l = l.area();
     let mut best = (tree.root, f32::INFINITY);
-    let mut stack = vec![(tree.root, 0.0f32)];
-    while let Some((x, induced)) = stack.pop() {
+    zero.push(tree.root);
+    loop {
+        let (x, ci) = if let Some(x) = zero.pop() {
+            (x, 0.0f32)
+        } else if let Some(Reverse(key)) = heap.pop() {
+            ((key & 0xffff_ffff) as u32, f32::from_bits((key >> 32) as u32))
+        } else {
+            break;
+        };
+        // Early termination: no queued entry can beat C_best (algorithm 1, line 6).
+        if ci + sa_l >= best.1 {
+            break;
+        }
+        *visited += 1;
         let d = &tree.nodes[x as usize];
-        let merged = d.bounds.union(l).area();
-        let c = induced + merged;
+        let c = ci + d.bounds.union(l).area();
         if c < best.1 {
             best = (x, c);
         }
-        if !d.is_leaf() {
-            let ci = induced + merged - d.bounds.area();
-            stack.push((d.right, ci));
-            stack.push((d.left, ci));
+        if d.is_leaf() {
+            continue;
+        }
+        // Induced cost of X's children: C(L, X) - SA(X) (algorithm 1, line 20). Clamped at 0 so
+        // a rounding artefact can never produce a negative key.
+        let ci_child = (c - d.bounds.area()).max(0.0);
+        if ci_child + sa_l < best.1 {
+            if ci_child == 0.0 {
+                // Right first so the left child pops first from the stack.
+                zero.push(d.right);
+                zero.push(d.left);
+            } else {
+                let hi = (ci_child.to_bits() as u64) << 32;
+                heap.push(Reverse(hi | d.left as u64));
+                heap.push(Reverse(hi | d.right as u64));
+            }
         }
     }
     best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tree::DynTree;
+    use bvhlab_bvh::{Bvh, Node, Vec3};
+    use bvhlab_geom::rng::SplitMix64;
+
+    /// Exhaustive reference: every reachable node, cost = induced + SA(X ∪ L).
+    fn exhaustive(tree: &DynTree, l: &Aabb) -> f32 {
+        let mut best = f32::INFINITY;
+        let mut stack = vec![(tree.root, 0.0f32)];
+        while let Some((x, induced)) = stack.pop() {
+            let d = &tree.nodes[x as usize];
+            let merged = d.bounds.union(l).area();
+            best = best.min(induced + merged);
+            if !d.is_leaf() {
+                let ci = induced + merged - d.bounds.area();
+                stack.push((d.right, ci));
+                stack.push((d.left, ci));
+            }
+        }
+        best
+    }
+
+    fn random_tree(n: usize, seed: u64) -> DynTree {
+        // A chain-ish random tree built by repeated insertion at random leaves.
+        let mut rng = SplitMix64::new(seed);
+        let mut boxes = Vec::new();
+        for _ in 0..n {
+            let p = Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 10.0;
+            let s = Vec3::new(rng.f32(), rng.f32(), rng.f32());
+            boxes.push(Aabb::new(p, p + s));
+        }
+        let centers: Vec<Vec3> = boxes.iter().map(|b| b.center()).collect();
+        let _ = &centers;
+        // Spatial-median-like layout by sorting on x then pairing bottom-up.
+        let mut nodes = vec![Node::leaf(boxes[0], 0, 1)];
+        let prims: Vec<u32> = (0..n as u32).collect();
+        // Build a left-deep chain: root = (((0,1),2),3)... in depth-first layout.
+        fn build(nodes: &mut Vec<Node>, boxes: &[Aabb], lo: usize, hi: usize, slot: usize) -> Aabb {
+            if hi - lo == 1 {
+                nodes[slot] = Node::leaf(boxes[lo], lo as u32, 1);
+                return boxes[lo];
+            }
+            let mid = lo + (hi - lo) / 3 + 1;
+            let li = nodes.len();
+            nodes.push(Node::leaf(Aabb::EMPTY, 0, 1));
+            nodes.push(Node::leaf(Aabb::EMPTY, 0, 1));
+            let a = build(nodes, boxes, lo, mid.min(hi - 1), li);
+            let b = build(nodes, boxes, mid.min(hi - 1), hi, li + 1);
+            let u = a.union(&b);
+            nodes[slot] = Node::inner(u, li as u32);
+            u
+        }
+        build(&mut nodes, &boxes, 0, n, 0);
+        DynTree::from_bvh(&Bvh { nodes, prim_indices: prims })
+    }
+
+    #[test]
+    fn branch_and_bound_matches_exhaustive() {
+        let mut scratch = SearchScratch::new();
+        for seed in 0..20 {
+            let t = random_tree(200, seed);
+            t.check().unwrap();
+            let mut rng = SplitMix64::new(seed + 100);
+            for _ in 0..50 {
+                let p = Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 12.0 - 1.0;
+                let s = Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0;
+                let l = Aabb::new(p, p + s);
+                let (x, c) = find_best(&t, &l, &mut scratch);
+                let want = exhaustive(&t, &l);
+                assert!((c - want).abs() <= 1e-4 * want, "seed {seed}: {c} vs {want}");
+                assert!(x != crate::tree::NONE);
+            }
+        }
+    }
 }

@@ -165,6 +165,24 @@ impl DynTree {
         }
     }
 
+    /// Like [`DynTree::refit_up`], but stops at the first ancestor whose box does not change: its
+    /// own ancestors were consistent with that box before, so they still are. Exact (boxes are
+    /// unions, min/max have no rounding), and what makes one reinsertion cheaper than a walk to
+    /// the root on deep trees.
+    pub fn refit_up_until_stable(&mut self, mut n: u32) {
+        while n != NONE {
+            let d = self.nodes[n as usize];
+            if !d.is_leaf() {
+                let b = self.nodes[d.left as usize].bounds.union(&self.nodes[d.right as usize].bounds);
+                if b == d.bounds {
+                    return;
+                }
+                self.nodes[n as usize].bounds = b;
+            }
+            n = self.parent[n as usize];
+        }
+    }
+
     /// Indices of the inner nodes reachable from the root, in index order.
     pub fn inner_nodes(&self) -> Vec<u32> {
         let mut reach = vec![false; self.nodes.len()];
