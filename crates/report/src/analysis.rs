@@ -6,26 +6,32 @@ use bvhlab_pipeline::ResultRow;
 use std::collections::BTreeMap;
 
 /// What identifies a method: the columns builder / build_params / encoder / encode_params /
-/// compact, never the display label (which may change with the pipeline's wording).
+/// compact, and for chains with an optimize stage also optimizer / optimize_params, never the
+/// display label (which may change with the pipeline's wording).
 pub fn method_key(r: &ResultRow) -> String {
-    format!(
+    let mut k = format!(
         "{}|{}|{}|{}|{}",
         r.builder,
         r.build_params,
         r.encoder.as_deref().unwrap_or(""),
         r.encode_params.as_deref().unwrap_or(""),
         r.compact
-    )
+    );
+    if let Some(o) = &r.optimizer {
+        k.push_str(&format!("|{o}|{}", r.optimize_params.as_deref().unwrap_or("")));
+    }
+    k
 }
 
-/// The whole construction time of a row: encode + build (+ a separate compaction stage), so Morton
-/// builders are charged for their codes and sort. Falls back to build + encode seconds for rows
+/// The whole construction time of a row: encode + build (+ optimize, which the pipeline adds to
+/// `total_build_seconds`) (+ a separate compaction stage), so Morton builders are charged for their
+/// codes and sort and optimizer chains for their passes (Bittner 2013's build_s). Falls back to build + encode seconds for rows
 /// written before `total_build_seconds` existed (0 there).
 pub fn total_build_seconds(r: &ResultRow) -> f64 {
     let total = if r.total_build_seconds > 0.0 {
         r.total_build_seconds
     } else {
-        r.build_seconds + r.encode_seconds.unwrap_or(0.0)
+        r.build_seconds + r.encode_seconds.unwrap_or(0.0) + r.optimize_seconds.unwrap_or(0.0)
     };
     total + r.compact_seconds
 }
@@ -442,7 +448,7 @@ pub struct Drop {
 /// exists with a grid) removed: the grid method's reference code.
 fn without_grid(key: &str) -> String {
     let mut parts: Vec<String> = key.split('|').map(str::to_string).collect();
-    if parts.len() == 5 {
+    if parts.len() >= 5 {
         let p: Vec<String> = parts[3]
             .split(',')
             .filter(|kv| kv.starts_with("grid_bits=") || !kv.starts_with("grid_"))

@@ -1,9 +1,11 @@
 //! The report: every result row in a polars DataFrame (results.parquet, results.csv), plots made with
 //! plotters (PNG and SVG), and index.html. Polars lives only here so algorithm crates build fast.
 pub mod analysis;
+pub mod convergence;
 pub mod frame;
 mod fsutil;
 mod html;
+mod optimization;
 pub mod plots;
 pub mod reference;
 mod sweeps;
@@ -77,12 +79,18 @@ pub fn write_report(
         let fig = ParetoFigure {
             scene: name.to_string(),
             cost_label: cost_label.to_string(),
+            time_label: if chains.iter().any(|r| r.optimizer.is_some()) {
+                "encode + build + optimize + compact time [s]".to_string()
+            } else {
+                "encode + build + compact time [s]".to_string()
+            },
             points: chains
                 .iter()
                 .map(|r| ParetoPoint {
                     label: r.method.clone(),
                     method_index: method_index(&r.method),
-                    // Encode + build + compaction: Morton builders pay for their codes and sort.
+                    // Encode + build + optimize + compaction: Morton builders pay for their codes
+                    // and sort, optimizer chains for their passes.
                     seconds: analysis::total_build_seconds(r),
                     sah_cost: if focus { r.focus_sah_cost.unwrap_or(f64::NAN) } else { r.sah_cost },
                 })
@@ -151,17 +159,22 @@ pub fn write_report(
     let heatmaps = copy_heatmaps(out_dir, rows, &mut problems);
 
     let reference = reference_dir.map(|d| reference::compare(d, rows));
+    let optimization_section = optimization::section(
+        rows,
+        reference.as_ref().and_then(|r| r.as_ref().ok()),
+        &mut |fig, stem, title, problems| plot(fig, stem, title, problems),
+        &mut problems,
+    );
     let mut reference_plots = Vec::new();
     if let Some(Ok(rep)) = &reference {
         for metric in unique(rep.comparisons.iter().map(|c| c.metric.as_str())) {
-            let fig = ReferenceFigure {
-                metric: metric.to_string(),
-                items: rep.comparisons.iter().filter(|c| c.metric == metric).cloned().collect(),
-            };
+            let items: Vec<_> = rep.comparisons.iter().filter(|c| c.metric == metric).cloned().collect();
+            let source = items[0].source.clone();
+            let fig = ReferenceFigure { metric: metric.to_string(), source: source.clone(), items };
             reference_plots.extend(plot(
                 &fig,
                 &format!("reference_{metric}"),
-                &format!("{metric}: ours vs Frantal 2019"),
+                &format!("{metric}: ours vs {source}"),
                 &mut problems,
             ));
         }
@@ -175,7 +188,8 @@ pub fn write_report(
                     is the SAH cost, or the focus SAH cost for scenes with a focus box (axis label). \
                     Filled, ringed points are on the Pareto front (no other chain is both faster and cheaper); the \
                     line connects them. Time is the whole construction: encode (Morton/EMC codes \
-                    and their sort) + build + compaction (medians)."
+                    and their sort) + build + optimize (ibo, kensler: the label says +ibo ...) + \
+                    compaction (medians)."
                 .into(),
             plots: pareto,
             extra: String::new(),
@@ -198,6 +212,10 @@ pub fn write_report(
             extra: String::new(),
         },
         sweep_section,
+    ];
+    let mut sections = sections;
+    sections.extend(optimization_section);
+    sections.extend([
         Section {
             id: "flags",
             title: format!("Flags: cost above {}x the best method", analysis::FLAG_RATIO),
@@ -211,7 +229,7 @@ pub fn write_report(
             plots: Vec::new(),
             extra: html::flags_table(&analysis::flags(rows)),
         },
-    ];
+    ]);
     let page = Page {
         experiment,
         generated: html::utc_now(),

@@ -9,11 +9,12 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 /// A thesis table column (method abbreviation) and the chain of ours that reproduces it, matched on
-/// the columns builder / build_params / encoder / encode_params / compact (never the label).
-/// `params` and `encode_params` list `k=v` pairs that must hold, alternatives separated by `|`; a
-/// key missing from a row counts as the default (assumed equal), but at least one key of the
-/// alternative must be present (so `preset=hq` does not match a row that spells out other
-/// delta/epsilon values). A value `auto` also matches `auto:<builder>`. Adding a method is one
+/// the columns builder / build_params / encoder / encode_params / compact / optimizer /
+/// optimize_params (never the label).
+/// `params`, `encode_params` and `optimize_params` list `k=v` pairs that must hold, alternatives
+/// separated by `|`; a key missing from a row counts as the default (assumed equal), but at least
+/// one key of the alternative must be present (so `preset=hq` does not match a row that spells out
+/// other delta/epsilon values). A value `auto` also matches `auto:<builder>`. Adding a method is one
 /// line here.
 pub struct MethodMap {
     pub abbrev: &'static str,
@@ -24,6 +25,28 @@ pub struct MethodMap {
     /// `None`: the row must have no encode stage.
     pub encoder: Option<&'static str>,
     pub encode_params: &'static str,
+    /// `None`: the row must have no optimize stage.
+    pub optimizer: Option<&'static str>,
+    pub optimize_params: &'static str,
+}
+
+/// A top-down (or incremental) method without encoder and optimizer.
+const fn plain(abbrev: &'static str, builder: &'static str, params: &'static str, compact: &'static str) -> MethodMap {
+    MethodMap { abbrev, builder, params, compact: Some(compact), encoder: None, encode_params: "", optimizer: None, optimize_params: "" }
+}
+
+/// A bottom-up method on the thesis' Morton codes (compaction inside the build stage).
+const fn coded(abbrev: &'static str, builder: &'static str, params: &'static str) -> MethodMap {
+    MethodMap {
+        abbrev,
+        builder,
+        params,
+        compact: None,
+        encoder: Some("morton"),
+        encode_params: ORIGINAL_CODES,
+        optimizer: None,
+        optimize_params: "",
+    }
 }
 
 /// The thesis builds its Morton-code builders from plain Morton codes with the method's own code
@@ -32,25 +55,95 @@ const ORIGINAL_CODES: &str = "bits=auto,bounds=scene,grid_bits=0";
 
 /// Thesis 4.1 / reference README: FSW full-sweep SAH and BIN binned SAH (16 bins, leaf threshold 2),
 /// both top-down with the SAH leaf-vs-split test and no compaction; AHQ/ALQ = AAC (table 2
-/// presets), PL1-3 = PLOC radius 10/25/100, all on Morton codes and SAH-compacted.
+/// presets), PL1-3 = PLOC radius 10/25/100, all on Morton codes and SAH-compacted; BP0-2 = Bonsai
+/// (thesis table 3: N = 512 unpruned, N = 512 T = 0.1, N = 4096 T = 0.01, top-down with the
+/// leaf-vs-split test); INC = incremental insertion (thesis table 5 parameters), one triangle per
+/// leaf, then SAH-compacted (reference README).
 pub const METHODS: &[MethodMap] = &[
-    MethodMap { abbrev: "FSW", builder: "sweep-sah", params: "leaf=2", compact: Some("none"), encoder: None, encode_params: "" },
+    plain("FSW", "sweep-sah", "leaf=2", "none"),
     // The thesis stops binning when the centroid extent is tiny along *any* axis (3.1.1); our default
     // stops only along the split axis. The literal rule is what reproduces its BIN column.
+    plain("BIN", "binned-sah", "bins=16,centroid_stop=any-axis,leaf=2", "none"),
+    coded("AHQ", "aac", "delta=20,epsilon=0.1|preset=hq"),
+    coded("ALQ", "aac", "delta=4,epsilon=0.2|preset=fast"),
+    coded("PL1", "ploc", "radius=10"),
+    coded("PL2", "ploc", "radius=25"),
+    coded("PL3", "ploc", "radius=100"),
+    plain("BP0", "bonsai", "n=512,prune=false,leaf=2", "none"),
+    plain("BP1", "bonsai", "n=512,prune=true,t=0.1,leaf=2", "none"),
+    plain("BP2", "bonsai", "n=4096,prune=true,t=0.01,leaf=2", "none"),
+    plain("INC", "incremental", "batch=8000,ofrac=0.01,coh=1.5", "collapse"),
+];
+
+/// The thesis' IBO settings (reference README: iboFrac 1%, pT = 10, pR = 5, combined measure).
+/// `keep_best` is not required: the thesis returns the last tree (5.2.1), our default the best.
+const IBO_THESIS: &str = "measure=comb,ibo_frac=0.01,pt=10,pr=5";
+
+const fn ibo(abbrev: &'static str, builder: &'static str, params: &'static str) -> MethodMap {
     MethodMap {
-        abbrev: "BIN",
-        builder: "binned-sah",
-        params: "bins=16,centroid_stop=any-axis,leaf=2",
-        compact: Some("none"),
+        abbrev,
+        builder,
+        params,
+        compact: Some("collapse"),
         encoder: None,
         encode_params: "",
-    },
-    MethodMap { abbrev: "AHQ", builder: "aac", params: "delta=20,epsilon=0.1|preset=hq", compact: None, encoder: Some("morton"), encode_params: ORIGINAL_CODES },
-    MethodMap { abbrev: "ALQ", builder: "aac", params: "delta=4,epsilon=0.2|preset=fast", compact: None, encoder: Some("morton"), encode_params: ORIGINAL_CODES },
-    MethodMap { abbrev: "PL1", builder: "ploc", params: "radius=10", compact: None, encoder: Some("morton"), encode_params: ORIGINAL_CODES },
-    MethodMap { abbrev: "PL2", builder: "ploc", params: "radius=25", compact: None, encoder: Some("morton"), encode_params: ORIGINAL_CODES },
-    MethodMap { abbrev: "PL3", builder: "ploc", params: "radius=100", compact: None, encoder: Some("morton"), encode_params: ORIGINAL_CODES },
+        optimizer: Some("ibo"),
+        optimize_params: IBO_THESIS,
+    }
+}
+
+/// Thesis 5.2 (tables 20, 38): FSW and INC built with one triangle per leaf, BIN with its leaf
+/// threshold 2, then IBO, then SAH compaction. Table 38 is the cost after; table 20 the cost after
+/// relative to the non-optimized method of table 10 (FSW/BIN/INC of `METHODS`), in percent.
+pub const IBO_METHODS: &[MethodMap] = &[
+    ibo("FSW", "sweep-sah", "leaf=1"),
+    ibo("BIN", "binned-sah", "bins=16,centroid_stop=any-axis,leaf=2"),
+    ibo("INC", "incremental", "batch=8000,ofrac=0.01,coh=1.5"),
 ];
+pub const IBO_RELATIVE_TABLE: &str = "frantal_t20_ibo_relative_percent.tsv";
+pub const IBO_COST_TABLE: &str = "frantal_t38_ibo_cost_and_time.tsv";
+pub const IBO_RELATIVE_LABEL: &str = "IBO: cost after / before [%] (table 20)";
+pub const IBO_COST_LABEL: &str = "SAH cost after IBO + compaction (table 38)";
+
+/// Bittner et al. 2013 table 2 (objects, SAH-built initial trees): the initial tree is a full-sweep
+/// SAH build with one triangle per leaf; "cost" is that tree (after the optimizer), "ocost" the
+/// same after SAH compaction. Rows name the optimizer by its measure.
+pub const BITTNER_TABLE: &str = "bittner2013_t2_objects_sah_base.tsv";
+pub const BITTNER_COST_LABEL: &str = "cost, one triangle per leaf (Bittner 2013 table 2)";
+pub const BITTNER_OCOST_LABEL: &str = "ocost, after compaction (Bittner 2013 table 2)";
+
+const fn bittner(abbrev: &'static str, optimizer: Option<&'static str>, optimize_params: &'static str) -> MethodMap {
+    MethodMap {
+        abbrev,
+        builder: "sweep-sah",
+        params: "leaf=1",
+        compact: Some("collapse"),
+        encoder: None,
+        encode_params: "",
+        optimizer,
+        optimize_params,
+    }
+}
+
+pub const BITTNER_METHODS: &[MethodMap] = &[
+    bittner("SAH build", None, ""),
+    bittner("IBO random", Some("ibo"), "measure=random"),
+    bittner("IBO combined", Some("ibo"), "measure=comb"),
+    bittner("Kensler hill climbing", Some("kensler-hc"), ""),
+    bittner("Kensler annealing", Some("kensler-sa"), ""),
+];
+
+/// One row of Bittner 2013 table 2 beside ours (times on different machines: compare ratios).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BittnerComparison {
+    pub scene_name: String,
+    pub paper_scene: String,
+    pub paper_method: String,
+    pub method: String,
+    /// cost, ocost, update_s, build_s.
+    pub ours: [f64; 4],
+    pub paper: [f64; 4],
+}
 
 /// Thesis table 25: EMC-64-var relative to the original Morton codes, same builder and parameters,
 /// in percent (cost and build time). Ours: emc64-var in the scene box without grid.
@@ -101,6 +194,8 @@ const INDEX_TABLE: &str = "frantal_t10_sah_cost.tsv";
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct Comparison {
+    /// Whose table: `Frantal 2019` (thesis) or `Bittner 2013`.
+    pub source: String,
     pub metric: String,
     pub scene_name: String,
     pub thesis_scene: String,
@@ -124,6 +219,8 @@ pub struct ReferenceReport {
     pub comparisons: Vec<Comparison>,
     /// Why something was not compared (different model, other cost constants, missing tables).
     pub notes: Vec<String>,
+    /// Bittner 2013 table 2 rows beside ours (cost, ocost, update_s, build_s).
+    pub bittner: Vec<BittnerComparison>,
 }
 
 /// A thesis scene: short name as in the tables, full name and triangle count from the md.
@@ -275,8 +372,8 @@ fn extra_params(row_params: &str, wanted: &str) -> usize {
         .count()
 }
 
-/// Whether row `r` is a run of thesis method `m` (builder, parameters, encoder, compaction); the
-/// number of parameters beyond the mapping (fewer = better match) if so.
+/// Whether row `r` is a run of thesis method `m` (builder, parameters, encoder, optimizer,
+/// compaction); the number of parameters beyond the mapping (fewer = better match) if so.
 pub fn row_matches(r: &ResultRow, m: &MethodMap) -> Option<usize> {
     if r.builder != m.builder || !params_match(&r.build_params, m.params) {
         return None;
@@ -295,7 +392,18 @@ pub fn row_matches(r: &ResultRow, m: &MethodMap) -> Option<usize> {
         }
         _ => return None,
     };
-    Some(extra_params(&r.build_params, m.params) + encode_extra)
+    let optimize_extra = match (m.optimizer, r.optimizer.as_deref()) {
+        (None, None) => 0,
+        (Some(want), Some(have)) if want == have => {
+            let op = r.optimize_params.as_deref().unwrap_or("");
+            if !params_match(op, m.optimize_params) {
+                return None;
+            }
+            extra_params(op, m.optimize_params)
+        }
+        _ => return None,
+    };
+    Some(extra_params(&r.build_params, m.params) + encode_extra + optimize_extra)
 }
 
 /// Compares every row that reproduces a thesis (scene, method) cell. Missing optional tables are
@@ -332,7 +440,7 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
         ));
     }
     // Best row per (scene, abbrev): fewest parameters beyond the mapping, then first.
-    let select = |rays: Option<&str>| -> Vec<((String, &'static str), usize)> {
+    let select = |rays: Option<&str>, methods: &'static [MethodMap]| -> Vec<((String, &'static str), usize)> {
         let mut best: BTreeMap<(String, &'static str), (usize, usize)> = BTreeMap::new();
         let mut order: Vec<(String, &'static str)> = Vec::new();
         for (ri, r) in rows.iter().enumerate() {
@@ -344,7 +452,7 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
                     continue;
                 }
             }
-            for m in METHODS {
+            for m in methods {
                 let Some(extra) = row_matches(r, m) else { continue };
                 let key = (r.scene.clone(), m.abbrev);
                 match best.get(&key) {
@@ -365,6 +473,7 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
     let push = |rep: &mut ReferenceReport, metric: &str, r: &ResultRow, ts: &ThesisScene, abbrev: &str, method: String, ours: f64, paper: f64| {
         let diff_percent = if paper != 0.0 { (ours - paper) / paper * 100.0 } else { f64::NAN };
         rep.comparisons.push(Comparison {
+            source: THESIS.to_string(),
             metric: metric.to_string(),
             scene_name: r.scene_name.clone(),
             thesis_scene: ts.short.clone(),
@@ -383,7 +492,7 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
             continue;
         }
         let table = read_tsv(&path)?;
-        for ((_, abbrev), ri) in select(metric.rays) {
+        for ((_, abbrev), ri) in select(metric.rays, METHODS) {
             let r = &rows[ri];
             let Some(ts) = same_model(r, &scenes) else { continue };
             let Some(paper) = table.get(&ts.short).and_then(|row| row.get(abbrev)).copied() else {
@@ -396,12 +505,16 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
 
     // Table 25: EMC-64-var relative to the Morton row of the same builder and parameters.
     let path = dir.join(EMC_TABLE);
-    if !path.exists() {
+    let table = if path.exists() {
+        read_tsv(&path)?
+    } else {
         rep.notes.push(format!("{EMC_TABLE} not found: EMC-64-var ratios not compared."));
-        return Ok(rep);
-    }
-    let table = read_tsv(&path)?;
-    for ((scene, abbrev), mi) in select(None) {
+        Table::new()
+    };
+    for ((scene, abbrev), mi) in select(None, METHODS) {
+        if table.is_empty() {
+            break;
+        }
         if !EMC_METHODS.contains(&abbrev) {
             continue;
         }
@@ -414,6 +527,7 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
                     && r.builder == m.builder
                     && r.build_params == m.build_params
                     && r.compact == m.compact
+                    && r.optimizer == m.optimizer
                     && consts_ok(r)
                     && r.encoder.as_deref() == Some(EMC_ENCODER)
                     && params_match(r.encode_params.as_deref().unwrap_or(""), EMC_PARAMS)
@@ -432,7 +546,150 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
             }
         }
     }
+
+    // Tables 38 and 20: IBO chains, absolute and relative to the table-10 method.
+    let t38 = optional_table(dir, IBO_COST_TABLE, "IBO costs (table 38)", &mut rep)?;
+    let t20 = optional_table(dir, IBO_RELATIVE_TABLE, "IBO relative costs (table 20)", &mut rep)?;
+    let before = select(None, METHODS);
+    for ((scene, abbrev), ri) in select(None, IBO_METHODS) {
+        let r = &rows[ri];
+        let Some(ts) = same_model(r, &scenes) else { continue };
+        let col = format!("cost_{abbrev}");
+        if let Some(paper) = t38.get(&ts.short).and_then(|p| p.get(&col)).copied() {
+            if r.sah_cost.is_finite() {
+                push(&mut rep, IBO_COST_LABEL, r, ts, abbrev, r.method.clone(), r.sah_cost, paper);
+            }
+        }
+        let Some(paper) = t20.get(&ts.short).and_then(|p| p.get(&col)).copied() else { continue };
+        let Some(&(_, bi)) = before.iter().find(|((s, a), _)| *s == scene && *a == abbrev) else {
+            rep.notes.push(format!(
+                "{}: table 20 {abbrev} needs the non-optimized {abbrev} chain of table 10 to divide by; not in this experiment.",
+                r.scene_name
+            ));
+            continue;
+        };
+        let b = &rows[bi];
+        if b.sah_cost > 0.0 && r.sah_cost.is_finite() {
+            let method = format!("{} / {}", r.method, b.method);
+            push(&mut rep, IBO_RELATIVE_LABEL, r, ts, abbrev, method, 100.0 * r.sah_cost / b.sah_cost, paper);
+        }
+    }
+
+    bittner_compare(dir, rows, &mut rep)?;
     Ok(rep)
+}
+
+pub const THESIS: &str = "Frantal 2019";
+pub const BITTNER: &str = "Bittner 2013";
+
+/// A table that may be missing (a note instead of an error).
+fn optional_table(dir: &Path, file: &str, what: &str, rep: &mut ReferenceReport) -> Result<Table, String> {
+    let path = dir.join(file);
+    if path.exists() {
+        read_tsv(&path)
+    } else {
+        rep.notes.push(format!("{file} not found: {what} not compared."));
+        Ok(Table::new())
+    }
+}
+
+/// A Bittner 2013 table row: scene, triangles in thousands, method, then cost, ocost, update_s,
+/// build_s.
+fn read_bittner(path: &Path) -> Result<Vec<(String, u64, String, [f64; 4])>, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
+    let header: Vec<&str> = lines.next().unwrap_or("").split('\t').map(str::trim).collect();
+    let col = |name: &str| header.iter().position(|h| *h == name);
+    let (Some(cs), Some(ck), Some(cm)) = (col("Scene"), col("triangles_k"), col("method")) else {
+        return Err(format!("{}: expected columns Scene, triangles_k, method", path.display()));
+    };
+    let vals = ["cost", "ocost", "update_s", "build_s"].map(col);
+    let mut out = Vec::new();
+    for line in lines {
+        let cells: Vec<&str> = line.split('\t').map(str::trim).collect();
+        let get = |i: Option<usize>| i.and_then(|i| cells.get(i)).and_then(|c| c.parse::<f64>().ok());
+        let Some(k) = cells.get(ck).and_then(|c| c.parse::<u64>().ok()) else { continue };
+        out.push((
+            cells.get(cs).unwrap_or(&"").to_string(),
+            k,
+            cells.get(cm).unwrap_or(&"").to_string(),
+            vals.map(|i| get(i).unwrap_or(f64::NAN)),
+        ));
+    }
+    Ok(out)
+}
+
+/// Bittner 2013 "cost" of a row: the tree before compaction (after the optimizer, or as built).
+pub fn bittner_cost(r: &ResultRow) -> Option<f64> {
+    if r.optimizer.is_some() {
+        r.optimized_sah_cost
+    } else if r.compact == "none" {
+        Some(r.sah_cost)
+    } else {
+        r.build_sah_cost
+    }
+}
+
+/// Bittner 2013 table 2: rows of scenes with the paper's triangle count (in thousands, rounded),
+/// matched by `BITTNER_METHODS`; cost and ocost also as comparisons, times only in the table (other
+/// machine).
+fn bittner_compare(dir: &Path, rows: &[ResultRow], rep: &mut ReferenceReport) -> Result<(), String> {
+    let path = dir.join(BITTNER_TABLE);
+    if !path.exists() {
+        if rows.iter().any(|r| r.optimizer.is_some()) {
+            rep.notes.push(format!("{BITTNER_TABLE} not found: Bittner 2013 table 2 not compared."));
+        }
+        return Ok(());
+    }
+    let table = read_bittner(&path)?;
+    let thousands = |r: &ResultRow| ((r.triangles + r.dropped_triangles) as f64 / 1000.0).round() as u64;
+    for (paper_scene, k, paper_method, paper) in &table {
+        let Some(m) = BITTNER_METHODS.iter().find(|m| m.abbrev == paper_method) else { continue };
+        let mut scenes: Vec<&str> = Vec::new();
+        for r in rows.iter().filter(|r| !r.scene.starts_with("gen:") && thousands(r) == *k && r.c_t == 3.0 && r.c_i == 2.0) {
+            if !scenes.contains(&r.scene.as_str()) {
+                scenes.push(&r.scene);
+            }
+        }
+        for scene in scenes {
+            let best = rows
+                .iter()
+                .filter(|r| r.scene == scene && r.c_t == 3.0 && r.c_i == 2.0)
+                .filter_map(|r| row_matches(r, m).map(|e| (e, r)))
+                .min_by_key(|(e, _)| *e);
+            let Some((_, r)) = best else { continue };
+            let ours = [
+                bittner_cost(r).unwrap_or(f64::NAN),
+                r.sah_cost,
+                r.optimize_seconds.unwrap_or(0.0),
+                crate::analysis::total_build_seconds(r) - r.compact_seconds,
+            ];
+            for (label, o, p) in [(BITTNER_COST_LABEL, ours[0], paper[0]), (BITTNER_OCOST_LABEL, ours[1], paper[1])] {
+                if o.is_finite() && p.is_finite() {
+                    rep.comparisons.push(Comparison {
+                        source: BITTNER.to_string(),
+                        metric: label.to_string(),
+                        scene_name: r.scene_name.clone(),
+                        thesis_scene: paper_scene.clone(),
+                        abbrev: paper_method.clone(),
+                        method: r.method.clone(),
+                        ours: o,
+                        paper: p,
+                        diff_percent: if p != 0.0 { (o - p) / p * 100.0 } else { f64::NAN },
+                    });
+                }
+            }
+            rep.bittner.push(BittnerComparison {
+                scene_name: r.scene_name.clone(),
+                paper_scene: paper_scene.clone(),
+                paper_method: paper_method.clone(),
+                method: r.method.clone(),
+                ours,
+                paper: *paper,
+            });
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! Plots. Every figure is drawn once, generically over the plotters backend, and rendered twice:
 //! PNG (BitMapBackend) for index.html and SVG (SVGBackend) for zooming and papers.
 pub mod bars;
+pub mod convergence;
 pub mod pareto;
 pub mod reference;
 pub mod sweep;

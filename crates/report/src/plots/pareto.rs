@@ -45,6 +45,8 @@ pub struct ParetoFigure {
     pub scene: String,
     /// What the y axis is: `SAH cost`, or `focus SAH cost` for scenes with a focus box.
     pub cost_label: String,
+    /// x axis: what the time includes (`encode + build + optimize + compact time [s]`).
+    pub time_label: String,
     pub points: Vec<ParetoPoint>,
 }
 
@@ -108,12 +110,12 @@ impl ParetoFigure {
         if xmin > 0.0 && xmax / xmin > 10.0 {
             // Extra room on the right for the point labels.
             let xr = (xmin / 1.5..xmax * 4.0).log_scale();
-            self.draw_with(root, title, xr, yr, "encode + build + compact time [s] (log)", ydesc)
+            self.draw_with(root, title, xr, yr, &format!("{} (log)", self.time_label), ydesc)
         } else {
             let xpad = if xmax > xmin { 0.1 * (xmax - xmin) } else { 0.05 * xmax.abs().max(1e-6) };
             let lo = if xmin >= 0.0 { 0.0 } else { xmin - xpad };
             let xr = lo..(xmax + 3.0 * xpad);
-            self.draw_with(root, title, xr, yr, "encode + build + compact time [s]", ydesc)
+            self.draw_with(root, title, xr, yr, &self.time_label, ydesc)
         }
     }
 }

@@ -7,6 +7,8 @@ use plotters::prelude::*;
 
 pub struct ReferenceFigure {
     pub metric: String,
+    /// Whose table (`Frantal 2019`, `Bittner 2013`).
+    pub source: String,
     pub items: Vec<Comparison>,
 }
 
@@ -36,7 +38,7 @@ impl Figure for ReferenceFigure {
         let yr = super::Categories(n);
         let xr = bar_range(self.items.iter().flat_map(|c| [c.ours, c.paper]));
         let mut chart = ChartBuilder::on(root)
-            .caption(format!("{}: ours vs Frantal 2019", self.metric), ("sans-serif", 22))
+            .caption(format!("{}: ours vs {}", self.metric, self.source), ("sans-serif", 22))
             .margin(15)
             .x_label_area_size(40)
             .y_label_area_size(label_width)
@@ -82,10 +84,10 @@ impl Figure for ReferenceFigure {
         // Legend by hand: two swatches in the upper right, beside the caption (never over bars).
         let (w, _) = root.dim_in_pixel();
         let x0 = w as i32 - 190;
-        for (k, (name, col)) in [("ours", OURS), ("Frantal 2019 thesis", PAPER)].iter().enumerate() {
+        for (k, (name, col)) in [("ours", OURS), (self.source.as_str(), PAPER)].iter().enumerate() {
             let y = 6 + 18 * k as i32;
             root.draw(&Rectangle::new([(x0, y), (x0 + 16, y + 12)], col.filled())).map_err(err)?;
-            root.draw(&Text::new(*name, (x0 + 22, y), ("sans-serif", 13).into_font())).map_err(err)?;
+            root.draw(&Text::new(name.to_string(), (x0 + 22, y), ("sans-serif", 13).into_font())).map_err(err)?;
         }
         Ok(())
     }
