@@ -74,9 +74,143 @@ impl Default for IboConfig {
 }
 
 /// Optimizes `bvh` (any builder's output, any leaf sizes: leaves move as units).
+///
+/// Passes (Bittner 2013 3.4-3.5): each pass updates k = max(1, round(frac x inner nodes)) inner
+/// nodes with [`reinsert_children`]: the k with the highest measure, most inefficient first (ties
+/// by node index), or k drawn uniformly (with replacement, seeded SplitMix64) in the random phase.
+/// The root cannot be updated (it has no parent) and is never selected. After `pr` passes without
+/// improving the best cost the selection switches to random sampling for the rest of the run; after
+/// `pt` passes without improvement the run stops (one counter for both, Bittner 3.5; it is not reset
+/// by the switch). The cost is recomputed exactly after every pass by a linear sweep over the inner
+/// nodes (node slots keep their role, so the inner nodes are a fixed index set): the leaf term of
+/// eq. 2 and the root box never change when whole leaves move.
 pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
-    let _ = cfg;
-    todo!("ibo helper: Bittner 2013 insertion-based optimization ({} nodes)", bvh.nodes.len())
+    let start = std::time::Instant::now();
+    let mut tree = DynTree::from_bvh(bvh);
+    let inner: Vec<u32> = (0..tree.nodes.len() as u32).filter(|&i| !tree.is_leaf(i)).collect();
+    let cost_of = CostOf::new(&tree, cfg.cost);
+    let c0 = cost_of.eval(&tree, &inner);
+    let mut trace = vec![crate::PassRecord { pass: 0, seconds: 0.0, sah_cost: c0, moved: 0, phase: cfg.measure.as_str().to_string() }];
+    // Updatable nodes: every inner node but the root.
+    let cand: Vec<u32> = inner.iter().copied().filter(|&i| i != tree.root).collect();
+    if cand.is_empty() {
+        return Optimized { bvh: tree.to_bvh(), trace, stop: crate::Stop::Converged, returned_pass: 0 };
+    }
+    let k = ((cfg.frac as f64 * inner.len() as f64).round() as usize).clamp(1, cand.len());
+    let mut rng = crate::SplitMix64::new(cfg.seed);
+    let mut scratch = SearchScratch::new();
+    let mut keyed: Vec<(f64, u32)> = Vec::with_capacity(cand.len());
+    let mut batch: Vec<u32> = Vec::with_capacity(k);
+    let mut best_cost = c0;
+    let mut best_pass = 0u32;
+    let mut best_tree: Option<DynTree> = None; // None: the input is the best so far
+    let mut since_best = 0u32;
+    let mut random_phase = cfg.measure == Measure::Random;
+    let mut pass = 0u32;
+    let stop = loop {
+        pass += 1;
+        batch.clear();
+        if random_phase {
+            for _ in 0..k {
+                batch.push(cand[rng.below(cand.len() as u64) as usize]);
+            }
+        } else {
+            keyed.clear();
+            keyed.extend(cand.iter().map(|&i| (measure_f64(&tree, i, cfg.measure), i)));
+            // Highest measure first, ties by lower index: a total order, so the selection is
+            // deterministic (select_nth then sort of the k selected; thesis 3.4.3).
+            let cmp = |a: &(f64, u32), b: &(f64, u32)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
+            if k < keyed.len() {
+                keyed.select_nth_unstable_by(k, cmp);
+            }
+            keyed[..k].sort_unstable_by(cmp);
+            batch.extend(keyed[..k].iter().map(|e| e.1));
+        }
+        let mut moved = 0u64;
+        for &n in &batch {
+            moved += reinsert_children(&mut tree, n, &mut scratch) as u64;
+        }
+        let c = cost_of.eval(&tree, &inner);
+        trace.push(crate::PassRecord {
+            pass,
+            seconds: start.elapsed().as_secs_f64(),
+            sah_cost: c,
+            moved,
+            phase: if random_phase { "random".to_string() } else { cfg.measure.as_str().to_string() },
+        });
+        if c < best_cost {
+            best_cost = c;
+            best_pass = pass;
+            since_best = 0;
+            if cfg.keep_best {
+                match &mut best_tree {
+                    Some(b) => b.clone_from(&tree),
+                    None => best_tree = Some(tree.clone()),
+                }
+            }
+        } else {
+            since_best += 1;
+        }
+        if since_best >= cfg.pt {
+            break crate::Stop::Converged;
+        }
+        if !random_phase && cfg.pr > 0 && since_best >= cfg.pr {
+            random_phase = true;
+        }
+        if cfg.max_passes > 0 && pass >= cfg.max_passes {
+            break crate::Stop::MaxPasses;
+        }
+        if cfg.max_seconds > 0.0 && start.elapsed().as_secs_f64() >= cfg.max_seconds {
+            break crate::Stop::MaxSeconds;
+        }
+    };
+    let (out, returned_pass) = if cfg.keep_best {
+        if best_pass == pass {
+            (tree.to_bvh(), pass)
+        } else {
+            match best_tree {
+                Some(b) => (b.to_bvh(), best_pass),
+                None => (bvh.clone(), 0),
+            }
+        }
+    } else {
+        (tree.to_bvh(), pass)
+    };
+    if std::env::var_os("IBO_DEBUG").is_some() {
+        eprintln!("ibo: {} searches visited {} nodes", 2 * k as u64 * pass as u64, scratch.visited);
+    }
+    Optimized { bvh: out, trace, stop, returned_pass }
+}
+
+/// SAH cost (thesis eq. 4 / Bittner eq. 2) of a tree whose leaves only move as units: the root box
+/// (the union of all leaves) and the leaf term are fixed, so only the inner areas are summed.
+struct CostOf {
+    c_t: f64,
+    leaf_term: f64,
+    root_sa: f64,
+}
+
+impl CostOf {
+    fn new(tree: &DynTree, cost: CostParams) -> CostOf {
+        let root_sa = if tree.root == NONE { 0.0 } else { tree.nodes[tree.root as usize].bounds.area_f64() };
+        let degenerate = !(root_sa > 0.0);
+        let leaf_term: f64 = tree
+            .nodes
+            .iter()
+            .filter(|d| d.is_leaf())
+            .map(|d| if degenerate { 1.0 } else { d.bounds.area_f64() } * d.count as f64)
+            .sum::<f64>()
+            * cost.c_i as f64;
+        CostOf { c_t: cost.c_t as f64, leaf_term, root_sa: if degenerate { 0.0 } else { root_sa } }
+    }
+    fn eval(&self, tree: &DynTree, inner: &[u32]) -> f64 {
+        if self.root_sa == 0.0 {
+            // Zero-area root: every node counts with ratio 1 (ARCHITECTURE, metrics).
+            return self.c_t * inner.len() as f64 + self.leaf_term;
+        }
+        let s: f64 = inner.iter().map(|&i| tree.nodes[i as usize].bounds.area_f64()).sum();
+        (self.c_t * s + self.leaf_term) / self.root_sa
+    }
 }
 
 /// Updates inner node `n` (Bittner 2013 3.3, thesis 3.4.2): removes N, its parent P and N's

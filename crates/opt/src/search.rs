@@ -18,7 +18,7 @@ pub struct SearchScratch {
     /// Entries with induced cost exactly 0 (the subtree of X already contains L's box up to the
     /// root): the thesis' zero-priority bucket (3.4.2), a plain stack popped before the heap.
     zero: Vec<u32>,
-    /// Nodes popped by the last search (for measurements).
+    /// Nodes popped by all searches with this scratch (for measurements).
     pub visited: u64,
 }
 
@@ -33,22 +33,39 @@ impl SearchScratch {
 /// cost (the area growth of every ancestor of X). Returns (X_best, its total cost C_best).
 /// Ties go to the node found first in the search order, which is deterministic.
 ///
-/// Bittner 2013 algorithm 1: nodes are popped by lowest induced cost C_I (zero-cost bucket first,
-/// thesis 3.4.2); the search ends when the popped node's lower bound C_I + SA(L) cannot beat
-/// C_best (every queued entry has at least that bound); a node's children are queued only if
-/// their bound C_I(child) + SA(L) is below C_best. Areas in f32 (the search decides, the optimizer
-/// measures the cost in f64).
+/// Bittner 2013 algorithm 1, with the thesis' zero-priority bucket (3.4.2). One implementation
+/// detail differs from the pseudocode, not the result: a node's two children are evaluated
+/// (direct cost, C_best update) when their parent is expanded rather than when they are popped,
+/// and a queue entry is (X, C_I of X's children) = C(L, X) - SA(X). So the two child boxes are
+/// loaded together (two independent cache misses overlap, which is where the search spends its
+/// time), leaves never enter the queue, and an entry carries the tighter bound of its subtree.
+/// The pruning rules are the paper's: an entry whose bound C_I + SA(L) cannot beat C_best is not
+/// queued, and the search ends when the lowest queued bound cannot (algorithm 1, line 6; every
+/// queued entry has at least that bound). Areas in f32 (the optimizer measures cost in f64).
 pub fn find_best(tree: &DynTree, l: &Aabb, scratch: &mut SearchScratch) -> (u32, f32) {
     let SearchScratch { heap, zero, visited } = scratch;
     heap.clear();
     zero.clear();
-    *visited = 0;
     if tree.root == crate::tree::NONE {
         return (crate::tree::NONE, f32::INFINITY);
     }
     let sa_l = l.area();
-    let mut best = (tree.root, f32::INFINITY);
-    zero.push(tree.root);
+    let nodes = &tree.nodes;
+    let root = &nodes[tree.root as usize];
+    let c_root = root.bounds.union(l).area();
+    let mut best = (tree.root, c_root);
+    if !root.is_leaf() {
+        // Induced cost of the root's children: C(L, root) - SA(root) (algorithm 1, line 20),
+        // clamped at 0 so a rounding artefact never gives a negative key.
+        let ci = (c_root - root.bounds.area()).max(0.0);
+        if ci + sa_l < best.1 {
+            if ci == 0.0 {
+                zero.push(tree.root);
+            } else {
+                heap.push(Reverse(((ci.to_bits() as u64) << 32) | tree.root as u64));
+            }
+        }
+    }
     loop {
         let (x, ci) = if let Some(x) = zero.pop() {
             (x, 0.0f32)
@@ -62,26 +79,27 @@ pub fn find_best(tree: &DynTree, l: &Aabb, scratch: &mut SearchScratch) -> (u32,
             break;
         }
         *visited += 1;
-        let d = &tree.nodes[x as usize];
-        let c = ci + d.bounds.union(l).area();
-        if c < best.1 {
-            best = (x, c);
+        let d = &nodes[x as usize];
+        let (a, b) = (&nodes[d.left as usize], &nodes[d.right as usize]);
+        let ca = ci + a.bounds.union(l).area();
+        let cb = ci + b.bounds.union(l).area();
+        if ca < best.1 {
+            best = (d.left, ca);
         }
-        if d.is_leaf() {
-            continue;
+        if cb < best.1 {
+            best = (d.right, cb);
         }
-        // Induced cost of X's children: C(L, X) - SA(X) (algorithm 1, line 20). Clamped at 0 so
-        // a rounding artefact can never produce a negative key.
-        let ci_child = (c - d.bounds.area()).max(0.0);
-        if ci_child + sa_l < best.1 {
-            if ci_child == 0.0 {
-                // Right first so the left child pops first from the stack.
-                zero.push(d.right);
-                zero.push(d.left);
-            } else {
-                let hi = (ci_child.to_bits() as u64) << 32;
-                heap.push(Reverse(hi | d.left as u64));
-                heap.push(Reverse(hi | d.right as u64));
+        for (child, cn, c) in [(d.left, a, ca), (d.right, b, cb)] {
+            if cn.is_leaf() {
+                continue;
+            }
+            let ci_child = (c - cn.bounds.area()).max(0.0);
+            if ci_child + sa_l < best.1 {
+                if ci_child == 0.0 {
+                    zero.push(child);
+                } else {
+                    heap.push(Reverse(((ci_child.to_bits() as u64) << 32) | child as u64));
+                }
             }
         }
     }
