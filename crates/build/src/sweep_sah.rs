@@ -6,10 +6,15 @@
 //!
 //! Each sorted array holds 32-byte records (box + index) rather than bare indices, so the sweeps and
 //! partitions stream through memory instead of gathering boxes by index.
+//!
+//! Bonsai (thesis 3.3.2) reuses the sweep twice: [`build_local`] builds a mini tree over a subset of
+//! the primitives, [`build_weighted`] the top tree over mini-tree roots, each item weighted by its
+//! primitive count in the SAH (the record's spare word holds the weight, so the plain build's records
+//! and loops are unchanged).
 use crate::boxa::BoxA;
 use crate::topdown::{build_nodes, Range};
 use crate::TopDownConfig;
-use bvhlab_bvh::{Aabb, Bvh, Vec3};
+use bvhlab_bvh::{Aabb, Bvh, Node, Vec3};
 use glam::Vec3A;
 
 #[derive(Clone, Copy, Debug)]
@@ -18,7 +23,8 @@ struct SweepRef {
     min: Vec3,
     idx: u32,
     max: Vec3,
-    _pad: u32,
+    /// Item weight for the weighted sweep (Bonsai top tree); 0 and unused otherwise.
+    w: u32,
 }
 
 impl SweepRef {
@@ -59,27 +65,74 @@ pub fn build(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> Bvh {
         "builders need one centre per primitive box"
     );
     assert!(boxes.len() < u32::MAX as usize, "primitive indices are u32");
-    let n = boxes.len();
-    if n == 0 {
-        return Bvh::default();
+    let (nodes, prim_indices) = build_local(boxes.len(), |i| centers[i], |i| boxes[i], cfg);
+    Bvh {
+        nodes,
+        prim_indices,
     }
-    let mut s = Sweeper::new(boxes, centers);
-    let mut bounds = BoxA::EMPTY;
-    for b in boxes {
-        bounds.grow(b.min.into(), b.max.into());
+}
+
+/// The full sweep over `n` items given by accessors (item `i`: centre, box): the node array (leaf
+/// `first` indexes the returned order) and the items' order in the leaves. [`build`] is this over
+/// all primitives; Bonsai (thesis 3.3.2) calls it per mini-tree primitive set.
+#[inline]
+pub(crate) fn build_local(
+    n: usize,
+    center: impl Fn(usize) -> Vec3,
+    bounds: impl Fn(usize) -> Aabb,
+    cfg: &TopDownConfig,
+) -> (Vec<Node>, Vec<u32>) {
+    assert!(n < u32::MAX as usize, "primitive indices are u32");
+    if n == 0 {
+        return (Vec::new(), Vec::new());
+    }
+    let mut s = Sweeper::new(n, center, &bounds, |_| 0);
+    let mut root_bounds = BoxA::EMPTY;
+    for i in 0..n {
+        let b = bounds(i);
+        root_bounds.grow(b.min.into(), b.max.into());
     }
     let root = Range {
         begin: 0,
         end: n,
-        bounds,
+        bounds: root_bounds,
         cbounds: BoxA::EMPTY,
     };
-    let nodes = build_nodes(n, root, |r| s.split(r, cfg));
+    let nodes = build_nodes(n, root, |r| s.split::<false>(r, cfg));
     // All three arrays hold the same primitive set in every node range; take the x-sorted one.
-    Bvh {
-        nodes,
-        prim_indices: s.sorted[0].iter().map(|p| p.idx).collect(),
+    (nodes, s.sorted[0].iter().map(|p| p.idx).collect())
+}
+
+/// The weighted full sweep of the Bonsai top tree (thesis 3.3.2): the items are mini-tree roots with
+/// their boxes, centred at the box centres, and the SAH counts each with its primitive count
+/// (`SA_L W_L + SA_R W_R`). Items are never grouped into a leaf (a leaf holds exactly one item: an
+/// item is a whole subtree), so there is no leaf test. Returns the nodes (leaf `first` indexes the
+/// returned order) and the items' order in the leaves.
+pub(crate) fn build_weighted(boxes: &[Aabb], weights: &[u32]) -> (Vec<Node>, Vec<u32>) {
+    assert_eq!(boxes.len(), weights.len(), "one weight per item");
+    let n = boxes.len();
+    assert!(n < u32::MAX as usize, "item indices are u32");
+    if n == 0 {
+        return (Vec::new(), Vec::new());
     }
+    let mut s = Sweeper::new(n, |i| boxes[i].center(), |i| boxes[i], |i| weights[i]);
+    let mut root_bounds = BoxA::EMPTY;
+    for b in boxes {
+        root_bounds.grow(b.min.into(), b.max.into());
+    }
+    let root = Range {
+        begin: 0,
+        end: n,
+        bounds: root_bounds,
+        cbounds: BoxA::EMPTY,
+    };
+    // leaf = 1: single-item leaves, no SAH leaf test (the cost constants are then unused).
+    let single = TopDownConfig {
+        leaf: 1,
+        ..Default::default()
+    };
+    let nodes = build_nodes(n, root, |r| s.split::<true>(r, &single));
+    (nodes, s.sorted[0].iter().map(|p| p.idx).collect())
 }
 
 /// Sort key (centroid, index) as one u64: the f32 bits are mapped to an order-preserving u32
@@ -96,27 +149,27 @@ fn sort_key(c: f32, idx: u32) -> u64 {
 }
 
 impl Sweeper {
-    fn new(boxes: &[Aabb], centers: &[Vec3]) -> Self {
-        let n = boxes.len();
+    #[inline]
+    fn new(
+        n: usize,
+        center: impl Fn(usize) -> Vec3,
+        bounds: impl Fn(usize) -> Aabb,
+        weight: impl Fn(usize) -> u32,
+    ) -> Self {
         let mut keys: Vec<u64> = Vec::with_capacity(n);
         let sorted = std::array::from_fn(|axis| {
             keys.clear();
-            keys.extend(
-                centers
-                    .iter()
-                    .enumerate()
-                    .map(|(i, c)| sort_key(c[axis], i as u32)),
-            );
+            keys.extend((0..n).map(|i| sort_key(center(i)[axis], i as u32)));
             keys.sort_unstable();
             keys.iter()
                 .map(|&k| {
                     let i = k as u32;
-                    let b = &boxes[i as usize];
+                    let b = bounds(i as usize);
                     SweepRef {
                         min: b.min,
                         idx: i,
                         max: b.max,
-                        _pad: 0,
+                        w: weight(i as usize),
                     }
                 })
                 .collect()
@@ -130,8 +183,9 @@ impl Sweeper {
     }
 
     /// Evaluates all `n - 1` candidates on all three axes (thesis 3.3.1 with eq. 2 costs). Ties go
-    /// to the lowest axis, then the lowest position.
-    fn find_split(&mut self, r: &Range) -> SweepSplit {
+    /// to the lowest axis, then the lowest position. `WEIGHTED`: an item counts `w` times (thesis
+    /// 3.3.2, the Bonsai top tree); otherwise once.
+    fn find_split<const WEIGHTED: bool>(&mut self, r: &Range) -> SweepSplit {
         let n = r.len();
         // Fallback if every cost is NaN (non-finite input): a valid median split on x.
         let mut best = SweepSplit {
@@ -148,10 +202,22 @@ impl Sweeper {
                 right_area[i] = acc.half_area();
             }
             let mut acc = BoxA::EMPTY;
+            // Weighted: integer prefix sums (exact), converted per candidate.
+            let total: u64 = if WEIGHTED {
+                a.iter().map(|p| p.w as u64).sum()
+            } else {
+                0
+            };
+            let mut w_l: u64 = 0;
             for i in 0..n - 1 {
                 acc.grow(a[i].min(), a[i].max());
-                let n_l = (i + 1) as f32;
-                let cost = acc.half_area() * n_l + right_area[i + 1] * (n as f32 - n_l);
+                let cost = if WEIGHTED {
+                    w_l += a[i].w as u64;
+                    acc.half_area() * w_l as f32 + right_area[i + 1] * (total - w_l) as f32
+                } else {
+                    let n_l = (i + 1) as f32;
+                    acc.half_area() * n_l + right_area[i + 1] * (n as f32 - n_l)
+                };
                 if cost < best.cost {
                     best = SweepSplit {
                         axis,
@@ -165,12 +231,18 @@ impl Sweeper {
     }
 
     /// The split decision for one node: `None` makes a leaf.
-    fn split(&mut self, r: &Range, cfg: &TopDownConfig) -> Option<(Range, Range)> {
+    fn split<const WEIGHTED: bool>(
+        &mut self,
+        r: &Range,
+        cfg: &TopDownConfig,
+    ) -> Option<(Range, Range)> {
         let n = r.len();
         if n <= cfg.max_leaf() {
             return None;
         }
-        let best = self.find_split(r);
+        // The weighted sweep only runs with single-item leaves (no leaf test below).
+        debug_assert!(!WEIGHTED || cfg.forced_single());
+        let best = self.find_split::<WEIGHTED>(r);
         if !cfg.forced_single() && cfg.sah_prefers_leaf(n, r.bounds.half_area(), best.cost) {
             return None;
         }
