@@ -1,5 +1,28 @@
 //! Incremental construction by insertion with global updates (Bittner, Hapala and Havran 2015;
 //! thesis 3.5.1).
+//!
+//! - **Allocation** (thesis 3.5.1): all 2n - 1 nodes up front: leaf i (slots `0..n`) holds
+//!   primitive i, inner nodes take slots `n..2n-1` in the order insertions consume them.
+//! - **Insertion** in input order: each leaf (or coherent pair, below) goes where
+//!   [`find_best`] says (the branch-and-bound search of Bittner 2013 shared with [`crate::ibo`]),
+//!   linked with the node X found under a fresh inner node (X left, the inserted node right, as
+//!   in thesis 3.4.2); boxes are refitted upwards until they stop changing.
+//! - **Coherence clustering** (thesis eq. 13): two consecutive primitives x, y with
+//!   SA(x ∪ y) / (SA(x) + SA(y)) < `coh` are linked under one inner node and inserted together;
+//!   pairs do not overlap (after a pair the test restarts with the next two primitives). Two
+//!   zero-area boxes count as coherent iff their union has zero area too. `coh = 0` disables it.
+//! - **Global updates** (thesis 3.5.1): after every `batch` inserted primitives, one
+//!   optimization pass in the spirit of ibo over the node-update cache: the inner nodes on the
+//!   paths from the insertion points to the root since the last pass (flags, one per node), of
+//!   which the `ofrac` fraction (at least one) with the highest combined inefficiency (thesis eq.
+//!   12, [`measure_value`]) are updated with [`reinsert_children`], most inefficient first (ties by
+//!   node index). The cache is then cleared. No pass after the last, incomplete batch (the
+//!   post-process optimization of the paper is the separate `ibo` stage).
+//!
+//! Deterministic: no randomness, ties broken by index.
+use crate::ibo::{measure_value, reinsert_children, Measure};
+use crate::search::{find_best, SearchScratch};
+use crate::tree::{DNode, DynTree, NONE};
 use crate::{Aabb, Bvh, CostParams};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -20,8 +43,143 @@ impl Default for IncConfig {
     }
 }
 
+/// Counters of one build, for measurements (what [`build`] does, plus what it did).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct IncStats {
+    /// Coherent pairs inserted as one subtree.
+    pub clusters: u64,
+    /// Optimization passes run (one per complete batch).
+    pub passes: u64,
+    /// Nodes updated by those passes, and how many of them changed the topology.
+    pub updated: u64,
+    pub moved: u64,
+    /// Nodes expanded by the insertion searches (not the update passes').
+    pub visited: u64,
+}
+
 /// Builds a BVH with one primitive per leaf, inserting primitives in input order.
 pub fn build(boxes: &[Aabb], cfg: &IncConfig) -> Bvh {
-    let _ = cfg;
-    todo!("incremental helper ({} primitives)", boxes.len())
+    build_with_stats(boxes, cfg).0
+}
+
+/// Thesis eq. 13: R_coh(x, y) < R_max.
+fn coherent(x: &Aabb, y: &Aabb, r_max: f32) -> bool {
+    let (sx, sy) = (x.area_f64(), y.area_f64());
+    let su = x.union(y).area_f64();
+    let denom = sx + sy;
+    if denom > 0.0 {
+        su / denom < r_max as f64
+    } else {
+        su == 0.0 && r_max > 0.0
+    }
+}
+
+/// [`build`] plus counters.
+pub fn build_with_stats(boxes: &[Aabb], cfg: &IncConfig) -> (Bvh, IncStats) {
+    let n = boxes.len();
+    let mut stats = IncStats::default();
+    if n == 0 {
+        return (Bvh::default(), stats);
+    }
+    let total = 2 * n - 1;
+    let mut nodes: Vec<DNode> = Vec::with_capacity(total);
+    nodes.extend(boxes.iter().enumerate().map(|(i, b)| DNode::leaf(*b, i as u32, 1)));
+    nodes.resize(total, DNode::inner(Aabb::EMPTY, NONE, NONE));
+    let mut tree = DynTree { nodes, parent: vec![NONE; total], prims: (0..n as u32).collect(), root: NONE };
+    let mut next_inner = n as u32;
+
+    let mut scratch = SearchScratch::new();
+    // Node-update cache: flags plus the list of flagged nodes (so a pass never scans all nodes).
+    let mut flag = vec![false; total];
+    let mut cached: Vec<u32> = Vec::new();
+    let batch = cfg.batch.max(1) as usize;
+    let mut inserted = 0usize;
+
+    let mut i = 0usize;
+    while i < n {
+        // Coherent pair -> one subtree (thesis eq. 13).
+        let (sub, count) = if cfg.coh > 0.0 && i + 1 < n && coherent(&boxes[i], &boxes[i + 1], cfg.coh) {
+            let c = next_inner;
+            next_inner += 1;
+            tree.set_children(c, i as u32, i as u32 + 1);
+            stats.clusters += 1;
+            (c, 2)
+        } else {
+            (i as u32, 1)
+        };
+        i += count;
+        if tree.root == NONE {
+            tree.root = sub;
+            tree.parent[sub as usize] = NONE;
+        } else {
+            let v0 = scratch.visited;
+            let (x, _) = find_best(&tree, tree.bounds(sub), &mut scratch);
+            stats.visited += scratch.visited - v0;
+            let link = next_inner;
+            next_inner += 1;
+            let xp = tree.parent[x as usize];
+            tree.replace_child(xp, x, link);
+            tree.set_children(link, x, sub);
+            tree.refit_up_until_stable(xp);
+            // Flag the branch: link and its ancestors, up to the first flagged one (within a
+            // batch a flagged node's ancestors are flagged: insertions only add nodes below them).
+            let mut a = link;
+            while a != NONE && !flag[a as usize] {
+                flag[a as usize] = true;
+                cached.push(a);
+                a = tree.parent[a as usize];
+            }
+        }
+        if !tree.is_leaf(sub) && !flag[sub as usize] {
+            flag[sub as usize] = true;
+            cached.push(sub);
+        }
+        let before = inserted;
+        inserted += count;
+        if inserted / batch > before / batch && inserted < n {
+            optimize_cached(&mut tree, &mut cached, &mut flag, cfg.ofrac, &mut scratch, &mut stats);
+        }
+    }
+    debug_assert_eq!(next_inner as usize, total);
+    debug_assert!(tree.check().is_ok());
+    (tree.to_bvh(), stats)
+}
+
+/// One global update pass over the node-update cache (thesis 3.5.1), then clears the cache.
+fn optimize_cached(
+    tree: &mut DynTree,
+    cached: &mut Vec<u32>,
+    flag: &mut [bool],
+    ofrac: f32,
+    scratch: &mut SearchScratch,
+    stats: &mut IncStats,
+) {
+    stats.passes += 1;
+    // Candidates: cached inner nodes that have a parent (the root cannot be updated).
+    let mut cand: Vec<(f32, u32)> = cached
+        .iter()
+        .filter(|&&c| tree.parent[c as usize] != NONE)
+        .map(|&c| (measure_value(tree, c, Measure::Comb), c))
+        .collect();
+    for &c in cached.iter() {
+        flag[c as usize] = false;
+    }
+    cached.clear();
+    if cand.is_empty() {
+        return;
+    }
+    let k = ((ofrac as f64 * cand.len() as f64).round() as usize).clamp(1, cand.len());
+    // Highest measure first, ties by node index.
+    let order = |a: &(f32, u32), b: &(f32, u32)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
+    if k < cand.len() {
+        cand.select_nth_unstable_by(k - 1, order);
+        cand.truncate(k);
+    }
+    cand.sort_unstable_by(order);
+    for &(_, c) in &cand {
+        stats.updated += 1;
+        if reinsert_children(tree, c, scratch) {
+            stats.moved += 1;
+        }
+    }
 }
