@@ -102,8 +102,10 @@ fn main() {
         o.stop.as_str()
     );
     println!(
-        "cost before {c_before:.3} (collapsed {c_coll0:.3})  after {c_after:.3} ({:+.2}%)  last pass {last_c:.3}  collapsed {c_coll:.3}",
-        100.0 * (c_after / c_before - 1.0)
+        "cost before {c_before:.4} (collapsed {c_coll0:.4})  after {c_after:.4} ({:+.2}%)  last pass {last_c:.4}  collapsed {c_coll:.4}  inner-SA ratio before {:.4} after {:.4}",
+        100.0 * (c_after / c_before - 1.0),
+        metrics(&bvh, cost).inner_sa_ratio,
+        metrics(&o.bvh, cost).inner_sa_ratio
     );
     if show_trace {
         for r in &o.trace {

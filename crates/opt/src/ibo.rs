@@ -100,10 +100,17 @@ pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
     let mut rng = crate::SplitMix64::new(cfg.seed);
     let mut scratch = SearchScratch::new();
     let mut keyed: Vec<(f64, u32)> = Vec::with_capacity(cand.len());
+    let mut area: Vec<f32> = Vec::with_capacity(tree.nodes.len());
     let mut batch: Vec<u32> = Vec::with_capacity(k);
     let mut best_cost = c0;
     let mut best_pass = 0u32;
-    let mut best_tree: Option<DynTree> = None; // None: the input is the best so far
+    // keep_best: the best tree's nodes and root, updated from the list of nodes changed since it
+    // was taken (Bittner's passes change a few percent of the nodes; copying all of them after
+    // every improving pass was a tenth of the run time on conference).
+    let mut best_nodes = tree.nodes.clone();
+    let mut best_root = tree.root;
+    let mut dirty: Vec<u32> = Vec::new();
+    let mut dirty_overflow = false; // more changes than nodes since the copy: copy everything
     let mut since_best = 0u32;
     let mut random_phase = cfg.measure == Measure::Random;
     let mut pass = 0u32;
@@ -115,8 +122,15 @@ pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
                 batch.push(cand[rng.below(cand.len() as u64) as usize]);
             }
         } else {
+            // Areas of all nodes in one linear sweep, then the measures read children's areas
+            // from this small array instead of chasing scattered 40-byte nodes.
+            area.clear();
+            area.extend(tree.nodes.iter().map(|d| d.bounds.area()));
             keyed.clear();
-            keyed.extend(cand.iter().map(|&i| (measure_f64(&tree, i, cfg.measure), i)));
+            keyed.extend(cand.iter().map(|&i| {
+                let d = &tree.nodes[i as usize];
+                (measure_of(area[i as usize], area[d.left as usize], area[d.right as usize], cfg.measure), i)
+            }));
             // Highest measure first, ties by lower index: a total order, so the selection is
             // deterministic (select_nth then sort of the k selected; thesis 3.4.3).
             let cmp = |a: &(f64, u32), b: &(f64, u32)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
@@ -128,7 +142,11 @@ pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
         }
         let mut moved = 0u64;
         for &n in &batch {
-            moved += reinsert_children(&mut tree, n, &mut scratch) as u64;
+            moved += if cfg.keep_best {
+                reinsert_logged(&mut tree, n, &mut scratch, &mut dirty)
+            } else {
+                reinsert_children(&mut tree, n, &mut scratch)
+            } as u64;
         }
         let c = cost_of.eval(&tree, &inner);
         trace.push(crate::PassRecord {
@@ -143,13 +161,23 @@ pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
             best_pass = pass;
             since_best = 0;
             if cfg.keep_best {
-                match &mut best_tree {
-                    Some(b) => b.clone_from(&tree),
-                    None => best_tree = Some(tree.clone()),
+                if dirty_overflow || dirty.len() > best_nodes.len() / 4 {
+                    best_nodes.copy_from_slice(&tree.nodes);
+                } else {
+                    for &i in &dirty {
+                        best_nodes[i as usize] = tree.nodes[i as usize];
+                    }
                 }
+                best_root = tree.root;
+                dirty.clear();
+                dirty_overflow = false;
             }
         } else {
             since_best += 1;
+            if dirty.len() > best_nodes.len() {
+                dirty.clear();
+                dirty_overflow = true;
+            }
         }
         if since_best >= cfg.pt {
             break crate::Stop::Converged;
@@ -167,11 +195,13 @@ pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
     let (out, returned_pass) = if cfg.keep_best {
         if best_pass == pass {
             (tree.to_bvh(), pass)
+        } else if best_pass == 0 {
+            (bvh.clone(), 0)
         } else {
-            match best_tree {
-                Some(b) => (b.to_bvh(), best_pass),
-                None => (bvh.clone(), 0),
-            }
+            // to_bvh reads only the nodes and the root (the parent array is not needed).
+            tree.nodes = best_nodes;
+            tree.root = best_root;
+            (tree.to_bvh(), best_pass)
         }
     } else {
         (tree.to_bvh(), pass)
@@ -224,6 +254,31 @@ impl CostOf {
 ///
 /// Nothing to do (returns false) when `n` is a leaf, the root, or has no parent.
 pub fn reinsert_children(tree: &mut DynTree, n: u32, scratch: &mut SearchScratch) -> bool {
+    reinsert_logged(tree, n, scratch, &mut NoLog)
+}
+
+/// Receives every node whose [`crate::tree::DNode`] a reinsertion changes (child links or box), so
+/// the optimizer can update its copy of the best tree in O(changed) instead of copying it whole.
+trait Log {
+    fn touch(&mut self, n: u32);
+}
+
+struct NoLog;
+impl Log for NoLog {
+    #[inline]
+    fn touch(&mut self, _: u32) {}
+}
+
+impl Log for Vec<u32> {
+    #[inline]
+    fn touch(&mut self, n: u32) {
+        if n != NONE {
+            self.push(n);
+        }
+    }
+}
+
+fn reinsert_logged(tree: &mut DynTree, n: u32, scratch: &mut SearchScratch, log: &mut impl Log) -> bool {
     if n == NONE || tree.is_leaf(n) {
         return false;
     }
@@ -235,25 +290,43 @@ pub fn reinsert_children(tree: &mut DynTree, n: u32, scratch: &mut SearchScratch
     let g = tree.parent[p as usize];
     // Remove N and P: the sibling takes P's place (becomes the root when P was the root).
     tree.replace_child(g, p, s);
-    tree.refit_up_until_stable(g);
+    log.touch(g);
+    refit_logged(tree, g, log);
     let d = tree.nodes[n as usize];
     let (l, r) = (d.left, d.right);
     // Larger child (by surface area) first; ties keep the left child first.
     let (c1, c2) = if tree.bounds(r).area() > tree.bounds(l).area() { (r, l) } else { (l, r) };
-    let x1 = insert_at_best(tree, c1, n, scratch);
-    let x2 = insert_at_best(tree, c2, p, scratch);
+    let x1 = insert_at_best(tree, c1, n, scratch, log);
+    let x2 = insert_at_best(tree, c2, p, scratch, log);
     !(x1 == s && x2 == c1)
 }
 
 /// Inserts the detached subtree `c` beside the best node X (Bittner 2013 algorithm 1) using the
 /// free inner node `link` as their parent; returns X.
-fn insert_at_best(tree: &mut DynTree, c: u32, link: u32, scratch: &mut SearchScratch) -> u32 {
+fn insert_at_best(tree: &mut DynTree, c: u32, link: u32, scratch: &mut SearchScratch, log: &mut impl Log) -> u32 {
     let (x, _) = find_best(tree, tree.bounds(c), scratch);
     let xp = tree.parent[x as usize];
     tree.replace_child(xp, x, link);
     tree.set_children(link, x, c);
-    tree.refit_up_until_stable(xp);
+    log.touch(xp);
+    log.touch(link);
+    refit_logged(tree, xp, log);
     x
+}
+
+/// [`DynTree::refit_up_until_stable`] that reports the nodes whose box changed.
+#[inline]
+fn refit_logged(tree: &mut DynTree, mut n: u32, log: &mut impl Log) {
+    while n != NONE {
+        let d = tree.nodes[n as usize];
+        let b = tree.nodes[d.left as usize].bounds.union(&tree.nodes[d.right as usize].bounds);
+        if b == d.bounds {
+            return;
+        }
+        tree.nodes[n as usize].bounds = b;
+        log.touch(n);
+        n = tree.parent[n as usize];
+    }
 }
 
 /// Ratio a / b for the inefficiency measures: a zero denominator (degenerate child boxes) gives
@@ -282,15 +355,34 @@ fn measure_f64(tree: &DynTree, n: u32, m: Measure) -> f64 {
     if d.is_leaf() {
         return 0.0;
     }
-    let sa = d.bounds.area() as f64;
-    let sl = tree.nodes[d.left as usize].bounds.area() as f64;
-    let sr = tree.nodes[d.right as usize].bounds.area() as f64;
+    let sa = |i: u32| tree.nodes[i as usize].bounds.area();
+    measure_of(d.bounds.area(), sa(d.left), sa(d.right), m)
+}
+
+/// The smaller positive child area (0 if both are 0). A zero-area child (a degenerate triangle's
+/// box: a segment or a point) has no SAH weight; taken literally it makes M_MIN infinite for
+/// every node above such a leaf, whatever the node's size, and on conference those nodes filled
+/// every batch with reinsertions that cannot change the cost. So eq. 10 ignores it here.
+#[inline]
+fn min_positive(a: f64, b: f64) -> f64 {
+    match (a > 0.0, b > 0.0) {
+        (true, true) => a.min(b),
+        (true, false) => a,
+        (false, true) => b,
+        (false, false) => 0.0,
+    }
+}
+
+/// The measure from the areas of N and its children (f32 areas as the search uses, f64 product).
+#[inline]
+fn measure_of(sa: f32, sl: f32, sr: f32, m: Measure) -> f64 {
+    let (sa, sl, sr) = (sa as f64, sl as f64, sr as f64);
     match m {
         Measure::Sum => ratio(sa, 0.5 * (sl + sr)),
-        Measure::Min => ratio(sa, sl.min(sr)),
+        Measure::Min => ratio(sa, min_positive(sl, sr)),
         Measure::Area => sa,
         Measure::Comb => {
-            let v = ratio(sa, 0.5 * (sl + sr)) * ratio(sa, sl.min(sr)) * sa;
+            let v = ratio(sa, 0.5 * (sl + sr)) * ratio(sa, min_positive(sl, sr)) * sa;
             if v.is_nan() {
                 0.0
             } else {
