@@ -3,7 +3,8 @@
 //!
 //! `cargo run --release -p bvhlab-opt --example inc_bench -- SCENE [runs=3] [batch=8000]
 //!  [ofrac=0.01] [coh=1.5] [order=input|shuffle|morton|reverse] [kensler=none|hc|sa|both]
-//!  [sa_seconds=60] [sa_passes=100] [t0=0.01] [cooling=0.9] [inc=true]`
+//!  [sa_seconds=60] [sa_passes=100] [t0=0.01] [cooling=0.9] [inc=true] [changed_only=false]
+//!  [k_of_tree=false] [final_pass=false]`
 //!
 //! Incremental: median build time of `runs` builds, the SAH cost of the raw tree (one primitive
 //! per leaf) and after SAH compaction (`collapse`, c_T=3, c_I=2, thesis table 10's number), and
@@ -12,7 +13,7 @@
 //! (`runs` times, median) and/or one annealing run capped by `sa_seconds`.
 use bvhlab_build::TopDownConfig;
 use bvhlab_bvh::{collapse::collapse, metrics, Aabb, Bvh, CostParams};
-use bvhlab_opt::incremental::{build_with_stats, IncConfig};
+use bvhlab_opt::incremental::{build_variant, IncConfig, Variant};
 use bvhlab_opt::kensler::{optimize, KenslerConfig};
 use bvhlab_opt::SplitMix64;
 use std::time::Instant;
@@ -51,6 +52,11 @@ fn main() {
     let order = get("order", "input");
     let kensler = get("kensler", "none");
     let do_inc: bool = get("inc", "true").parse().unwrap();
+    let var = Variant {
+        changed_only: get("changed_only", "false").parse().unwrap(),
+        k_of_tree: get("k_of_tree", "false").parse().unwrap(),
+        final_pass: get("final_pass", "false").parse().unwrap(),
+    };
 
     let scene = bvhlab_geom::load_scene(&spec).expect("load");
     let (boxes, centers) = scene.boxes_and_centers();
@@ -80,7 +86,7 @@ fn main() {
         let mut last: Option<(Bvh, _)> = None;
         for _ in 0..runs {
             let t = Instant::now();
-            let r = build_with_stats(&ordered, &icfg);
+            let r = build_variant(&ordered, &icfg, var);
             times.push(t.elapsed().as_secs_f64());
             last = Some(r);
         }
@@ -91,7 +97,7 @@ fn main() {
         let tc = t.elapsed().as_secs_f64();
         let m = metrics(&col, cost);
         println!(
-            "incremental order={order} batch={} ofrac={} coh={}: build {:.3} s (median of {runs}), collapse {:.3} s, \
+            "incremental order={order} batch={} ofrac={} coh={} {var:?}: build {:.3} s (median of {runs}), collapse {:.3} s, \
              cost raw {raw:.2}, collapsed {:.2}",
             icfg.batch,
             icfg.ofrac,

@@ -62,6 +62,20 @@ pub fn build(boxes: &[Aabb], cfg: &IncConfig) -> Bvh {
     build_with_stats(boxes, cfg).0
 }
 
+/// Readings of the node-update cache where the thesis is terse, for measurements (`inc_bench`);
+/// [`build`] uses `Variant::default()`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Variant {
+    /// false (default): the whole branch of an insertion is flagged (link node up to the root);
+    /// true: only the link node and the ancestors whose box the insertion changed.
+    pub changed_only: bool,
+    /// false (default): k = ofrac x flagged nodes; true: k = ofrac x inner nodes in the tree
+    /// (chosen among the flagged ones).
+    pub k_of_tree: bool,
+    /// Also run a pass after the last, incomplete batch.
+    pub final_pass: bool,
+}
+
 /// Thesis eq. 13: R_coh(x, y) < R_max.
 fn coherent(x: &Aabb, y: &Aabb, r_max: f32) -> bool {
     let (sx, sy) = (x.area_f64(), y.area_f64());
@@ -76,6 +90,11 @@ fn coherent(x: &Aabb, y: &Aabb, r_max: f32) -> bool {
 
 /// [`build`] plus counters.
 pub fn build_with_stats(boxes: &[Aabb], cfg: &IncConfig) -> (Bvh, IncStats) {
+    build_variant(boxes, cfg, Variant::default())
+}
+
+/// [`build_with_stats`] with a [`Variant`] of the node-update cache.
+pub fn build_variant(boxes: &[Aabb], cfg: &IncConfig, var: Variant) -> (Bvh, IncStats) {
     let n = boxes.len();
     let mut stats = IncStats::default();
     if n == 0 {
@@ -120,14 +139,36 @@ pub fn build_with_stats(boxes: &[Aabb], cfg: &IncConfig) -> (Bvh, IncStats) {
             let xp = tree.parent[x as usize];
             tree.replace_child(xp, x, link);
             tree.set_children(link, x, sub);
-            tree.refit_up_until_stable(xp);
-            // Flag the branch: link and its ancestors, up to the first flagged one (within a
-            // batch a flagged node's ancestors are flagged: insertions only add nodes below them).
-            let mut a = link;
-            while a != NONE && !flag[a as usize] {
-                flag[a as usize] = true;
-                cached.push(a);
-                a = tree.parent[a as usize];
+            if var.changed_only {
+                if !flag[link as usize] {
+                    flag[link as usize] = true;
+                    cached.push(link);
+                }
+                let mut a = xp;
+                while a != NONE {
+                    let d = tree.nodes[a as usize];
+                    let b = tree.nodes[d.left as usize].bounds.union(&tree.nodes[d.right as usize].bounds);
+                    if b == d.bounds {
+                        break;
+                    }
+                    tree.nodes[a as usize].bounds = b;
+                    if !flag[a as usize] {
+                        flag[a as usize] = true;
+                        cached.push(a);
+                    }
+                    a = tree.parent[a as usize];
+                }
+            } else {
+                tree.refit_up_until_stable(xp);
+                // Flag the branch: link and its ancestors, up to the first flagged one (within a
+                // batch a flagged node's ancestors are flagged: insertions only add nodes below
+                // them).
+                let mut a = link;
+                while a != NONE && !flag[a as usize] {
+                    flag[a as usize] = true;
+                    cached.push(a);
+                    a = tree.parent[a as usize];
+                }
             }
         }
         if !tree.is_leaf(sub) && !flag[sub as usize] {
@@ -136,8 +177,9 @@ pub fn build_with_stats(boxes: &[Aabb], cfg: &IncConfig) -> (Bvh, IncStats) {
         }
         let before = inserted;
         inserted += count;
-        if inserted / batch > before / batch && inserted < n {
-            optimize_cached(&mut tree, &mut cached, &mut flag, cfg.ofrac, &mut scratch, &mut stats);
+        if (inserted / batch > before / batch && inserted < n) || (var.final_pass && inserted == n) {
+            let base = if var.k_of_tree { Some(next_inner as usize - n) } else { None };
+            optimize_cached(&mut tree, &mut cached, &mut flag, cfg.ofrac, base, &mut scratch, &mut stats);
         }
     }
     debug_assert_eq!(next_inner as usize, total);
@@ -151,6 +193,7 @@ fn optimize_cached(
     cached: &mut Vec<u32>,
     flag: &mut [bool],
     ofrac: f32,
+    k_base: Option<usize>,
     scratch: &mut SearchScratch,
     stats: &mut IncStats,
 ) {
@@ -168,7 +211,8 @@ fn optimize_cached(
     if cand.is_empty() {
         return;
     }
-    let k = ((ofrac as f64 * cand.len() as f64).round() as usize).clamp(1, cand.len());
+    let base = k_base.unwrap_or(cand.len());
+    let k = ((ofrac as f64 * base as f64).round() as usize).clamp(1, cand.len());
     // Highest measure first, ties by node index.
     let order = |a: &(f32, u32), b: &(f32, u32)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
     if k < cand.len() {
