@@ -3,7 +3,9 @@
 //! SCENE is a path (.obj / .obj.gz) or `gen:...`. Everything runs inside a rayon pool of `threads`
 //! threads. BUILDERS is an optional comma-separated subset of: spatial-median, binned-sah,
 //! binned-sah-any-axis, sweep-sah, binned-sah-par, lbvh, aac-hq, aac-fast, ploc-10, ploc-25,
-//! ploc-100 (default: all). Boxes and centres are computed once (not timed); each builder runs
+//! ploc-100, bonsai-bp0, bonsai-bp1, bonsai-bp2 (default: all). The Bonsai variants are thesis
+//! table 3 (BP0: N = 512; BP1: N = 512, T = 0.1, pruning; BP2: N = 4096, T = 0.01, pruning) with the
+//! same leaf threshold and SAH constants as the other top-down builders. Boxes and centres are computed once (not timed); each builder runs
 //! `runs` times.
 //!
 //! The Morton-family times are the whole pipeline from boxes to a compacted tree: encode (Morton
@@ -15,6 +17,7 @@
 //! binned SAH vs the sequential one). A builder that panics (not implemented yet) gets an `error`
 //! line and the others still run.
 use bvhlab_build::aac::AacConfig;
+use bvhlab_build::bonsai::{self, BonsaiConfig};
 use bvhlab_build::binned_sah::CentroidTermination;
 use bvhlab_build::ploc::PlocConfig;
 use bvhlab_build::{
@@ -25,7 +28,7 @@ use bvhlab_morton::{AutoFor, Bits, EncodeConfig};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::time::Instant;
 
-const ALL: [&str; 11] = [
+const ALL: [&str; 14] = [
     "spatial-median",
     "binned-sah",
     "binned-sah-any-axis",
@@ -37,6 +40,9 @@ const ALL: [&str; 11] = [
     "ploc-10",
     "ploc-25",
     "ploc-100",
+    "bonsai-bp0",
+    "bonsai-bp1",
+    "bonsai-bp2",
 ];
 
 /// Milliseconds of one run, split into the pipeline parts (encode and collapse are 0 for the
@@ -75,6 +81,15 @@ fn run(name: &str, boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> (Bv
             cfg,
             CentroidTermination::default(),
         )),
+        "bonsai-bp0" | "bonsai-bp1" | "bonsai-bp2" => {
+            let preset = match name {
+                "bonsai-bp0" => BonsaiConfig::BP0,
+                "bonsai-bp1" => BonsaiConfig::BP1,
+                _ => BonsaiConfig::BP2,
+            };
+            let bc = BonsaiConfig { top: *cfg, ..preset };
+            Some(bonsai::build(boxes, centers, &bc))
+        }
         _ => None,
     };
     if let Some(bvh) = top_down {
