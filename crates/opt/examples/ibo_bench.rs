@@ -48,6 +48,10 @@ fn main() {
     let start = get("start", "sweep");
     let chain: u32 = get("chain", "0").parse().unwrap();
     let show_trace: bool = get("trace", "false").parse().unwrap();
+    // chain: collapse before each further ibo run (ibo then moves the multi-primitive leaves).
+    let chain_collapse: bool = get("chain_collapse", "false").parse().unwrap();
+    let chain_pt: u32 = get("chain_pt", &cfg.pt.to_string()).parse().unwrap();
+    let chain_measure = Measure::parse(&get("chain_measure", cfg.measure.as_str())).expect("chain_measure");
 
     let scene = bvhlab_geom::load_scene(&spec).expect("load");
     let (boxes, centers) = scene.boxes_and_centers();
@@ -116,6 +120,11 @@ fn main() {
     for i in 0..chain {
         let mut c2 = cfg;
         c2.seed = cfg.seed + 1 + i as u64;
+        c2.pt = chain_pt;
+        c2.measure = chain_measure;
+        if chain_collapse {
+            cur = collapse(&cur, cost);
+        }
         let t = Instant::now();
         let o2 = optimize(&cur, &c2);
         let c = metrics(&o2.bvh, cost).sah_cost;

@@ -220,3 +220,27 @@ fn reinsert_children_keeps_the_tree_consistent() {
     let (_, c) = find_best(&t, &b, &mut scratch);
     assert!(c <= b.area() * (1.0 + 1e-6));
 }
+
+#[test]
+fn measures_stay_finite_above_degenerate_leaves() {
+    // Zero-area boxes (points): eq. 10 would divide by zero; the measure ignores such children.
+    let p = |x: f32| Aabb::new(Vec3::splat(x), Vec3::splat(x));
+    let q = Aabb::new(Vec3::ZERO, Vec3::splat(2.0));
+    let nodes = vec![
+        Node::inner(q.union(&p(5.0)), 1),
+        Node::inner(q.union(&p(3.0)), 3),
+        Node::leaf(p(5.0), 2, 1),
+        Node::leaf(q, 0, 1),
+        Node::leaf(p(3.0), 1, 1),
+    ];
+    let t = DynTree::from_bvh(&Bvh { nodes, prim_indices: vec![0, 1, 2] });
+    t.check().unwrap();
+    for m in [Measure::Sum, Measure::Min, Measure::Area, Measure::Comb] {
+        for n in [0, 1] {
+            assert!(measure_value(&t, n, m).is_finite(), "{m:?} node {n}");
+        }
+    }
+    // Node 1 = (q, point at 3): SA(N) / SA(q).
+    let want = t.bounds(1).area() / q.area();
+    assert!((measure_value(&t, 1, Measure::Min) - want).abs() <= 1e-5 * want);
+}
