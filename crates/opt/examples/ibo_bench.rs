@@ -50,6 +50,8 @@ fn main() {
     let show_trace: bool = get("trace", "false").parse().unwrap();
     // chain: collapse before each further ibo run (ibo then moves the multi-primitive leaves).
     let chain_collapse: bool = get("chain_collapse", "false").parse().unwrap();
+    // ... or only from this chain step on (1-based; 0 = never unless chain_collapse).
+    let chain_collapse_from: u32 = get("chain_collapse_from", "0").parse().unwrap();
     let chain_pt: u32 = get("chain_pt", &cfg.pt.to_string()).parse().unwrap();
     let chain_measure = Measure::parse(&get("chain_measure", cfg.measure.as_str())).expect("chain_measure");
 
@@ -122,7 +124,7 @@ fn main() {
         c2.seed = cfg.seed + 1 + i as u64;
         c2.pt = chain_pt;
         c2.measure = chain_measure;
-        if chain_collapse {
+        if chain_collapse || (chain_collapse_from > 0 && i + 1 >= chain_collapse_from) {
             cur = collapse(&cur, cost);
         }
         let t = Instant::now();

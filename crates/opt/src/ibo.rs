@@ -206,9 +206,6 @@ pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
     } else {
         (tree.to_bvh(), pass)
     };
-    if std::env::var_os("IBO_DEBUG").is_some() {
-        eprintln!("ibo: {} searches visited {} nodes", 2 * k as u64 * pass as u64, scratch.visited);
-    }
     Optimized { bvh: out, trace, stop, returned_pass }
 }
 
