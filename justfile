@@ -27,6 +27,18 @@ frantal:
 morton:
     cargo run --release -- sweep experiments/frantal-morton.toml
 
+# Thesis tables 20 and 38 (and table 10's INC): FSW, BIN, INC with and without insertion-based optimization.
+ibo:
+    cargo run --release -- sweep experiments/frantal-ibo.toml
+
+# Bittner 2013: ibo per measure and Kensler rotations from spatial-median and SAH trees; convergence plots.
+bittner:
+    cargo run --release -- sweep experiments/bittner-ibo.toml
+
+# Thesis table 10 BP0/BP1/BP2: Bonsai mini-tree builds beside the full-sweep SAH.
+bonsai:
+    cargo run --release -- sweep experiments/bonsai.toml
+
 # The Morton failure study (Riemersma 2024): far outlier e = 0..30 and a huge ground plane.
 outliers:
     cargo run --release -- sweep experiments/morton-outliers.toml
