@@ -3,7 +3,7 @@
 //!
 //! `cargo run --release -p bvhlab-opt --example inc_bench -- SCENE [runs=3] [batch=8000]
 //!  [ofrac=0.01] [coh=1.5] [order=input|shuffle|morton|reverse] [kensler=none|hc|sa|both]
-//!  [sa_seconds=60] [sa_passes=100] [t0=0.01] [cooling=0.9] [inc=true] [changed_only=false]
+//!  [sa_seconds=60] [sa_passes=100] [t0=0.01] [cooling=0.9] [inc=true] [tscale=root|node] [changed_only=false]
 //!  [k_of_tree=false] [final_pass=false]`
 //!
 //! Incremental: median build time of `runs` builds, the SAH cost of the raw tree (one primitive
@@ -14,7 +14,7 @@
 use bvhlab_build::TopDownConfig;
 use bvhlab_bvh::{collapse::collapse, metrics, Aabb, Bvh, CostParams};
 use bvhlab_opt::incremental::{build_variant, IncConfig, Variant};
-use bvhlab_opt::kensler::{optimize, KenslerConfig};
+use bvhlab_opt::kensler::{optimize, optimize_scaled, KenslerConfig, TempScale};
 use bvhlab_opt::SplitMix64;
 use std::time::Instant;
 
@@ -25,8 +25,15 @@ fn median(v: &mut [f64]) -> f64 {
 
 fn morton3(c: [f32; 3], lo: [f32; 3], ext: [f32; 3]) -> u64 {
     let mut code = 0u64;
-    let q: Vec<u64> =
-        (0..3).map(|a| if ext[a] > 0.0 { (((c[a] - lo[a]) / ext[a]) * 1023.999).max(0.0) as u64 } else { 0 }).collect();
+    let q: Vec<u64> = (0..3)
+        .map(|a| {
+            if ext[a] > 0.0 {
+                (((c[a] - lo[a]) / ext[a]) * 1023.999).max(0.0) as u64
+            } else {
+                0
+            }
+        })
+        .collect();
     for bit in (0..10).rev() {
         for a in 0..3 {
             code = (code << 1) | ((q[a] >> bit) & 1);
@@ -39,7 +46,10 @@ fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let spec = args.first().expect("scene path or gen spec").clone();
     let get = |k: &str, d: &str| -> String {
-        args.iter().skip(1).find_map(|a| a.strip_prefix(&format!("{k}=")).map(str::to_string)).unwrap_or(d.to_string())
+        args.iter()
+            .skip(1)
+            .find_map(|a| a.strip_prefix(&format!("{k}=")).map(str::to_string))
+            .unwrap_or(d.to_string())
     };
     let runs: usize = get("runs", "3").parse().unwrap();
     let cost = CostParams::default();
@@ -76,7 +86,10 @@ fn main() {
             "morton" => {
                 let b = scene.bounds();
                 let (lo, ext) = (b.min.to_array(), (b.max - b.min).to_array());
-                let codes: Vec<u64> = centers.iter().map(|c| morton3(c.to_array(), lo, ext)).collect();
+                let codes: Vec<u64> = centers
+                    .iter()
+                    .map(|c| morton3(c.to_array(), lo, ext))
+                    .collect();
                 perm.sort_by_key(|&i| (codes[i], i));
             }
             o => panic!("order {o}"),
@@ -123,13 +136,17 @@ fn main() {
 
     if kensler != "none" {
         let t = Instant::now();
-        let sweep = bvhlab_build::sweep_sah::build(&boxes, &centers, &TopDownConfig { leaf: 1, cost });
+        let sweep =
+            bvhlab_build::sweep_sah::build(&boxes, &centers, &TopDownConfig { leaf: 1, cost });
         let tb = t.elapsed().as_secs_f64();
         let c0 = metrics(&sweep, cost).sah_cost;
         let o0 = metrics(&collapse(&sweep, cost), cost).sah_cost;
         println!("sweep-sah leaf=1: build {tb:.3} s, cost {c0:.2}, collapsed {o0:.2}");
         if kensler == "hc" || kensler == "both" {
-            let cfg = KenslerConfig { cost, ..KenslerConfig::default() };
+            let cfg = KenslerConfig {
+                cost,
+                ..KenslerConfig::default()
+            };
             let mut times = Vec::new();
             let mut last = None;
             for _ in 0..runs {
@@ -159,14 +176,19 @@ fn main() {
                 cost,
                 ..KenslerConfig::default()
             };
+            let scale = if get("tscale", "root") == "node" {
+                TempScale::Node
+            } else {
+                TempScale::Root
+            };
             let t = Instant::now();
-            let r = optimize(&sweep, &cfg);
+            let r = optimize_scaled(&sweep, &cfg, scale);
             let ts = t.elapsed().as_secs_f64();
             let c = metrics(&r.bvh, cost).sah_cost;
             let o = metrics(&collapse(&r.bvh, cost), cost).sah_cost;
             let last = r.trace.last().unwrap();
             println!(
-                "kensler-sa t0={} cooling={}: {ts:.2} s, {} passes, stop {}, returned pass {}, cost {c:.2}, collapsed \
+                "kensler-sa t0={} cooling={} {scale:?}: {ts:.2} s, {} passes, stop {}, returned pass {}, cost {c:.2}, collapsed \
                  {o:.2} (last pass cost {:.2})",
                 cfg.t0,
                 cfg.cooling,
@@ -175,8 +197,26 @@ fn main() {
                 r.returned_pass,
                 last.sah_cost
             );
+            let t = Instant::now();
+            let q = optimize(
+                &r.bvh,
+                &KenslerConfig {
+                    cost,
+                    ..KenslerConfig::default()
+                },
+            );
+            println!(
+                "  + hill climbing on the annealed tree: {:.2} s, {} passes, cost {:.2}, collapsed {:.2}",
+                t.elapsed().as_secs_f64(),
+                q.trace.len() - 1,
+                metrics(&q.bvh, cost).sah_cost,
+                metrics(&collapse(&q.bvh, cost), cost).sah_cost
+            );
             for p in r.trace.iter().step_by((r.trace.len() / 10).max(1)) {
-                println!("    pass {:4} {:8.2} s cost {:9.3} moved {}", p.pass, p.seconds, p.sah_cost, p.moved);
+                println!(
+                    "    pass {:4} {:8.2} s cost {:9.3} moved {}",
+                    p.pass, p.seconds, p.sah_cost, p.moved
+                );
             }
         }
     }

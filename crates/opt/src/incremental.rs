@@ -39,7 +39,12 @@ pub struct IncConfig {
 
 impl Default for IncConfig {
     fn default() -> Self {
-        IncConfig { batch: 8000, ofrac: 0.01, coh: 1.5, cost: CostParams::default() }
+        IncConfig {
+            batch: 8000,
+            ofrac: 0.01,
+            coh: 1.5,
+            cost: CostParams::default(),
+        }
     }
 }
 
@@ -102,9 +107,19 @@ pub fn build_variant(boxes: &[Aabb], cfg: &IncConfig, var: Variant) -> (Bvh, Inc
     }
     let total = 2 * n - 1;
     let mut nodes: Vec<DNode> = Vec::with_capacity(total);
-    nodes.extend(boxes.iter().enumerate().map(|(i, b)| DNode::leaf(*b, i as u32, 1)));
+    nodes.extend(
+        boxes
+            .iter()
+            .enumerate()
+            .map(|(i, b)| DNode::leaf(*b, i as u32, 1)),
+    );
     nodes.resize(total, DNode::inner(Aabb::EMPTY, NONE, NONE));
-    let mut tree = DynTree { nodes, parent: vec![NONE; total], prims: (0..n as u32).collect(), root: NONE };
+    let mut tree = DynTree {
+        nodes,
+        parent: vec![NONE; total],
+        prims: (0..n as u32).collect(),
+        root: NONE,
+    };
     let mut next_inner = n as u32;
 
     let mut scratch = SearchScratch::new();
@@ -117,15 +132,16 @@ pub fn build_variant(boxes: &[Aabb], cfg: &IncConfig, var: Variant) -> (Bvh, Inc
     let mut i = 0usize;
     while i < n {
         // Coherent pair -> one subtree (thesis eq. 13).
-        let (sub, count) = if cfg.coh > 0.0 && i + 1 < n && coherent(&boxes[i], &boxes[i + 1], cfg.coh) {
-            let c = next_inner;
-            next_inner += 1;
-            tree.set_children(c, i as u32, i as u32 + 1);
-            stats.clusters += 1;
-            (c, 2)
-        } else {
-            (i as u32, 1)
-        };
+        let (sub, count) =
+            if cfg.coh > 0.0 && i + 1 < n && coherent(&boxes[i], &boxes[i + 1], cfg.coh) {
+                let c = next_inner;
+                next_inner += 1;
+                tree.set_children(c, i as u32, i as u32 + 1);
+                stats.clusters += 1;
+                (c, 2)
+            } else {
+                (i as u32, 1)
+            };
         i += count;
         if tree.root == NONE {
             tree.root = sub;
@@ -147,7 +163,9 @@ pub fn build_variant(boxes: &[Aabb], cfg: &IncConfig, var: Variant) -> (Bvh, Inc
                 let mut a = xp;
                 while a != NONE {
                     let d = tree.nodes[a as usize];
-                    let b = tree.nodes[d.left as usize].bounds.union(&tree.nodes[d.right as usize].bounds);
+                    let b = tree.nodes[d.left as usize]
+                        .bounds
+                        .union(&tree.nodes[d.right as usize].bounds);
                     if b == d.bounds {
                         break;
                     }
@@ -177,9 +195,22 @@ pub fn build_variant(boxes: &[Aabb], cfg: &IncConfig, var: Variant) -> (Bvh, Inc
         }
         let before = inserted;
         inserted += count;
-        if (inserted / batch > before / batch && inserted < n) || (var.final_pass && inserted == n) {
-            let base = if var.k_of_tree { Some(next_inner as usize - n) } else { None };
-            optimize_cached(&mut tree, &mut cached, &mut flag, cfg.ofrac, base, &mut scratch, &mut stats);
+        if (inserted / batch > before / batch && inserted < n) || (var.final_pass && inserted == n)
+        {
+            let base = if var.k_of_tree {
+                Some(next_inner as usize - n)
+            } else {
+                None
+            };
+            optimize_cached(
+                &mut tree,
+                &mut cached,
+                &mut flag,
+                cfg.ofrac,
+                base,
+                &mut scratch,
+                &mut stats,
+            );
         }
     }
     debug_assert_eq!(next_inner as usize, total);

@@ -119,7 +119,11 @@ pub fn rotation_delta(t: &DynTree, n: u32, rot: Rotation) -> Option<f64> {
             if l.is_leaf() || r.is_leaf() {
                 return None;
             }
-            let (moved_in, r_keep) = if rot == LLwithRL { (r.left, r.right) } else { (r.right, r.left) };
+            let (moved_in, r_keep) = if rot == LLwithRL {
+                (r.left, r.right)
+            } else {
+                (r.right, r.left)
+            };
             let new_l = b(moved_in).union(b(l.right)).area_f64();
             let new_r = b(l.left).union(b(r_keep)).area_f64();
             Some((new_l + new_r) - (l.bounds.area_f64() + r.bounds.area_f64()))
@@ -147,7 +151,11 @@ pub fn apply_rotation(t: &mut DynTree, n: u32, rot: Rotation) {
         RwithLR => swap_child(t, r, l, t.nodes[l as usize].right),
         LLwithRL | LLwithRR => {
             let ll = t.nodes[l as usize].left;
-            let rx = if rot == LLwithRL { t.nodes[r as usize].left } else { t.nodes[r as usize].right };
+            let rx = if rot == LLwithRL {
+                t.nodes[r as usize].left
+            } else {
+                t.nodes[r as usize].right
+            };
             t.replace_child(l, ll, rx);
             t.replace_child(r, rx, ll);
             refit_one(t, l);
@@ -159,7 +167,9 @@ pub fn apply_rotation(t: &mut DynTree, n: u32, rot: Rotation) {
 #[inline]
 fn refit_one(t: &mut DynTree, n: u32) {
     let d = t.nodes[n as usize];
-    t.nodes[n as usize].bounds = t.nodes[d.left as usize].bounds.union(&t.nodes[d.right as usize].bounds);
+    t.nodes[n as usize].bounds = t.nodes[d.left as usize]
+        .bounds
+        .union(&t.nodes[d.right as usize].bounds);
 }
 
 /// Inner nodes reachable from the root in post-order (children before parents), iteratively:
@@ -200,6 +210,22 @@ fn best_rotation(t: &DynTree, n: u32) -> (Option<(Rotation, f64)>, usize) {
 }
 
 pub fn optimize(bvh: &Bvh, cfg: &KenslerConfig) -> Optimized {
+    optimize_scaled(bvh, cfg, TempScale::Root)
+}
+
+/// What the annealing temperature is relative to (for measurements; [`optimize`] uses `Root`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TempScale {
+    /// `T = t0 · cooling^pass · SA(root)` for every node (the module's unit).
+    Root,
+    /// `T = t0 · cooling^pass · SA(N)` at node N: the same relative acceptance at every depth
+    /// (an experiment: with `Root` deep nodes, whose area changes are tiny, walk almost freely
+    /// while the top of the tree is frozen).
+    Node,
+}
+
+/// [`optimize`] with a choice of [`TempScale`].
+pub fn optimize_scaled(bvh: &Bvh, cfg: &KenslerConfig, scale: TempScale) -> Optimized {
     let start = Instant::now();
     let mut tree = DynTree::from_bvh(bvh);
     let phase = if cfg.anneal { "sa" } else { "hc" };
@@ -213,7 +239,12 @@ pub fn optimize(bvh: &Bvh, cfg: &KenslerConfig) -> Optimized {
     };
     let mut trace = vec![record(0, 0.0, cost0, 0)];
     if tree.root == NONE || tree.is_leaf(tree.root) {
-        return Optimized { bvh: tree.to_bvh(), trace, stop: Stop::Converged, returned_pass: 0 };
+        return Optimized {
+            bvh: tree.to_bvh(),
+            trace,
+            stop: Stop::Converged,
+            returned_pass: 0,
+        };
     }
     let root_area = tree.bounds(tree.root).area_f64();
     // A zero-area root (flat degenerate scenes): every node has zero area, nothing to gain;
@@ -246,16 +277,27 @@ pub fn optimize(bvh: &Bvh, cfg: &KenslerConfig) -> Optimized {
         let mut moved = 0u64;
         for &n in &order {
             let (best_rot, valid) = best_rotation(&tree, n);
-            let Some((rot, delta)) = best_rot else { continue };
+            let Some((rot, delta)) = best_rot else {
+                continue;
+            };
             if delta < 0.0 {
                 apply_rotation(&mut tree, n, rot);
                 moved += 1;
             } else if cfg.anneal {
                 // No improving rotation: a uniformly drawn one, Metropolis acceptance.
                 let k = rng.below(valid as u64) as usize;
-                let rot = ROTATIONS.iter().copied().filter(|&r| rotation_delta(&tree, n, r).is_some()).nth(k).unwrap();
+                let rot = ROTATIONS
+                    .iter()
+                    .copied()
+                    .filter(|&r| rotation_delta(&tree, n, r).is_some())
+                    .nth(k)
+                    .unwrap();
                 let delta = rotation_delta(&tree, n, rot).unwrap();
-                if rng.f64() < (-delta / temp).exp() {
+                let t = match scale {
+                    TempScale::Root => temp,
+                    TempScale::Node => temp / area_unit * tree.bounds(n).area_f64(),
+                };
+                if rng.f64() < (-delta / t).exp() {
                     apply_rotation(&mut tree, n, rot);
                     moved += 1;
                 }
@@ -290,7 +332,12 @@ pub fn optimize(bvh: &Bvh, cfg: &KenslerConfig) -> Optimized {
     } else {
         pass
     };
-    Optimized { bvh: tree.to_bvh(), trace, stop, returned_pass }
+    Optimized {
+        bvh: tree.to_bvh(),
+        trace,
+        stop,
+        returned_pass,
+    }
 }
 
 #[cfg(test)]
@@ -309,21 +356,33 @@ mod tests {
             })
             .collect();
         // Build a DynTree by random merges, then lay it out.
-        let mut nodes: Vec<crate::tree::DNode> =
-            boxes.iter().enumerate().map(|(i, b)| crate::tree::DNode::leaf(*b, i as u32, 1)).collect();
+        let mut nodes: Vec<crate::tree::DNode> = boxes
+            .iter()
+            .enumerate()
+            .map(|(i, b)| crate::tree::DNode::leaf(*b, i as u32, 1))
+            .collect();
         let mut parent = vec![NONE; n];
         let mut live: Vec<u32> = (0..n as u32).collect();
         while live.len() > 1 {
             let a = live.swap_remove(rng.below(live.len() as u64) as usize);
             let b = live.swap_remove(rng.below(live.len() as u64) as usize);
             let id = nodes.len() as u32;
-            nodes.push(crate::tree::DNode::inner(nodes[a as usize].bounds.union(&nodes[b as usize].bounds), a, b));
+            nodes.push(crate::tree::DNode::inner(
+                nodes[a as usize].bounds.union(&nodes[b as usize].bounds),
+                a,
+                b,
+            ));
             parent.push(NONE);
             parent[a as usize] = id;
             parent[b as usize] = id;
             live.push(id);
         }
-        let t = DynTree { nodes, parent, prims: (0..n as u32).collect(), root: live[0] };
+        let t = DynTree {
+            nodes,
+            parent,
+            prims: (0..n as u32).collect(),
+            root: live[0],
+        };
         t.check().unwrap();
         (t.to_bvh(), boxes)
     }
@@ -337,14 +396,19 @@ mod tests {
         let mut checked = 0;
         for n in t0.inner_nodes() {
             for rot in ROTATIONS {
-                let Some(delta) = rotation_delta(&t0, n, rot) else { continue };
+                let Some(delta) = rotation_delta(&t0, n, rot) else {
+                    continue;
+                };
                 let mut t = t0.clone();
                 apply_rotation(&mut t, n, rot);
                 t.check().unwrap();
                 bvhlab_bvh::validate(&t.to_bvh(), &boxes).unwrap();
                 let want = t.sah_cost(cost) - t0.sah_cost(cost);
                 let got = cost.c_t as f64 * delta / root_area;
-                assert!((want - got).abs() < 1e-9 * t0.sah_cost(cost), "{rot:?} at {n}: {want} vs {got}");
+                assert!(
+                    (want - got).abs() < 1e-9 * t0.sah_cost(cost),
+                    "{rot:?} at {n}: {want} vs {got}"
+                );
                 // The inverse rotation exists with the exactly opposite delta.
                 checked += 1;
             }

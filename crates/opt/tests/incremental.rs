@@ -17,17 +17,36 @@ fn one_per_leaf(b: &Bvh, n: usize) {
 
 #[test]
 fn valid_and_same_hits_as_brute_force() {
-    for spec in ["gen:sphere:n=2000", "gen:terrain:n=2000", "gen:hairball:n=300", "gen:city:blocks=4", "gen:degenerate:n=1000"]
-    {
+    for spec in [
+        "gen:sphere:n=2000",
+        "gen:terrain:n=2000",
+        "gen:hairball:n=300",
+        "gen:city:blocks=4",
+        "gen:degenerate:n=1000",
+    ] {
         let scene = load_scene(spec).unwrap();
         let (boxes, _) = scene.boxes_and_centers();
         let rays = random_rays(&scene.bounds(), 0.0, 2000, 13);
         let want = brute_force(&scene.triangles, &rays);
         for cfg in [
             IncConfig::default(),
-            IncConfig { batch: 100, ofrac: 0.2, ..Default::default() },
-            IncConfig { batch: 37, ofrac: 0.05, coh: 0.0, ..Default::default() },
-            IncConfig { batch: 1, ofrac: 1.0, coh: 3.0, ..Default::default() },
+            IncConfig {
+                batch: 100,
+                ofrac: 0.2,
+                ..Default::default()
+            },
+            IncConfig {
+                batch: 37,
+                ofrac: 0.05,
+                coh: 0.0,
+                ..Default::default()
+            },
+            IncConfig {
+                batch: 1,
+                ofrac: 1.0,
+                coh: 3.0,
+                ..Default::default()
+            },
         ] {
             let ctx = format!("{spec} {cfg:?}");
             let bvh = build(&boxes, &cfg);
@@ -35,8 +54,10 @@ fn valid_and_same_hits_as_brute_force() {
             one_per_leaf(&bvh, boxes.len());
             let got = trace(&bvh, &scene.triangles, &rays);
             for (i, (g, w)) in got.hits.iter().zip(&want).enumerate() {
-                let same =
-                    g.prim == w.prim || (g.is_hit() && w.is_hit() && (g.t - w.t).abs() <= 1e-4 * w.t.abs().max(1e-30));
+                let same = g.prim == w.prim
+                    || (g.is_hit()
+                        && w.is_hit()
+                        && (g.t - w.t).abs() <= 1e-4 * w.t.abs().max(1e-30));
                 assert!(same, "{ctx}: ray {i} got {g:?}, brute force {w:?}");
             }
         }
@@ -48,7 +69,11 @@ fn deterministic_and_passes_counted() {
     let scene = load_scene("gen:hairball:n=400").unwrap();
     let (boxes, _) = scene.boxes_and_centers();
     let n = boxes.len();
-    let cfg = IncConfig { batch: 50, ofrac: 0.1, ..Default::default() };
+    let cfg = IncConfig {
+        batch: 50,
+        ofrac: 0.1,
+        ..Default::default()
+    };
     let (a, sa) = build_with_stats(&boxes, &cfg);
     let (b, sb) = build_with_stats(&boxes, &cfg);
     assert_eq!(a, b);
@@ -56,7 +81,11 @@ fn deterministic_and_passes_counted() {
     // One pass per complete batch that is not the end of the input (insertions of coherent pairs
     // count two primitives, so a batch boundary may be crossed by one).
     let full = ((n - 1) / 50) as u64;
-    assert!(full > 5 && sa.passes + 1 >= full && sa.passes <= full, "{} passes for {n}", sa.passes);
+    assert!(
+        full > 5 && sa.passes + 1 >= full && sa.passes <= full,
+        "{} passes for {n}",
+        sa.passes
+    );
     assert!(sa.updated >= sa.passes && sa.moved <= sa.updated);
 }
 
@@ -70,10 +99,28 @@ fn batch_passes_lower_the_cost() {
     for i in (1..shuffled.len()).rev() {
         shuffled.swap(i, rng.below(i as u64 + 1) as usize);
     }
-    let none = build(&shuffled, &IncConfig { batch: u32::MAX, ..Default::default() });
-    let (some, st) = build_with_stats(&shuffled, &IncConfig { batch: 200, ofrac: 0.2, ..Default::default() });
+    let none = build(
+        &shuffled,
+        &IncConfig {
+            batch: u32::MAX,
+            ..Default::default()
+        },
+    );
+    let (some, st) = build_with_stats(
+        &shuffled,
+        &IncConfig {
+            batch: 200,
+            ofrac: 0.2,
+            ..Default::default()
+        },
+    );
     assert!(st.passes > 10 && st.moved > 0);
-    assert!(cost(&some) < 0.98 * cost(&none), "{} vs {}", cost(&some), cost(&none));
+    assert!(
+        cost(&some) < 0.98 * cost(&none),
+        "{} vs {}",
+        cost(&some),
+        cost(&none)
+    );
 }
 
 #[test]
@@ -95,18 +142,34 @@ fn coherent_pairs_are_clustered() {
             i += 1;
         }
     }
-    assert!(want > 100, "terrain should have coherent neighbours ({want})");
+    assert!(
+        want > 100,
+        "terrain should have coherent neighbours ({want})"
+    );
     // Without passes every pair stays under its own inner node.
-    let (bvh, st) = build_with_stats(&boxes, &IncConfig { batch: u32::MAX, coh, ..Default::default() });
+    let (bvh, st) = build_with_stats(
+        &boxes,
+        &IncConfig {
+            batch: u32::MAX,
+            coh,
+            ..Default::default()
+        },
+    );
     assert_eq!(st.clusters, want);
     let mut found = 0;
     for d in &bvh.nodes {
         if d.is_leaf() {
             continue;
         }
-        let (l, r) = (&bvh.nodes[d.first as usize], &bvh.nodes[d.first as usize + 1]);
+        let (l, r) = (
+            &bvh.nodes[d.first as usize],
+            &bvh.nodes[d.first as usize + 1],
+        );
         if l.is_leaf() && r.is_leaf() {
-            let (a, b) = (bvh.prim_indices[l.first as usize], bvh.prim_indices[r.first as usize]);
+            let (a, b) = (
+                bvh.prim_indices[l.first as usize],
+                bvh.prim_indices[r.first as usize],
+            );
             if pairs.binary_search(&(a.min(b), a.max(b))).is_ok() {
                 found += 1;
             }
@@ -114,7 +177,18 @@ fn coherent_pairs_are_clustered() {
     }
     assert!(found >= want, "{found} of {want} pairs found as siblings");
     // coh = 0 disables clustering.
-    assert_eq!(build_with_stats(&boxes, &IncConfig { coh: 0.0, ..Default::default() }).1.clusters, 0);
+    assert_eq!(
+        build_with_stats(
+            &boxes,
+            &IncConfig {
+                coh: 0.0,
+                ..Default::default()
+            }
+        )
+        .1
+        .clusters,
+        0
+    );
 }
 
 #[test]
@@ -127,7 +201,14 @@ fn degenerate_inputs() {
         vec![p(0.0), p(1.0), p(0.0)],
         vec![p(3.0); 1000],
     ] {
-        for cfg in [IncConfig::default(), IncConfig { batch: 10, ofrac: 0.5, ..Default::default() }] {
+        for cfg in [
+            IncConfig::default(),
+            IncConfig {
+                batch: 10,
+                ofrac: 0.5,
+                ..Default::default()
+            },
+        ] {
             let bvh = build(&boxes, &cfg);
             validate(&bvh, &boxes).unwrap();
             one_per_leaf(&bvh, boxes.len());
@@ -136,10 +217,22 @@ fn degenerate_inputs() {
     // Points along a line in sorted order: every insertion goes to the end, the tree is a chain
     // as deep as the input (quadratic search time, so kept small; deep enough to catch recursion).
     let line: Vec<Aabb> = (0..10_000).map(|i| p(i as f32)).collect();
-    let bvh = build(&line, &IncConfig { batch: 1000, ..Default::default() });
+    let bvh = build(
+        &line,
+        &IncConfig {
+            batch: 1000,
+            ..Default::default()
+        },
+    );
     validate(&bvh, &line).unwrap();
     let scene = load_scene("gen:degenerate:n=2000").unwrap();
     let (boxes, _) = scene.boxes_and_centers();
-    let bvh = build(&boxes, &IncConfig { batch: 50, ..Default::default() });
+    let bvh = build(
+        &boxes,
+        &IncConfig {
+            batch: 50,
+            ..Default::default()
+        },
+    );
     validate(&bvh, &boxes).unwrap();
 }
