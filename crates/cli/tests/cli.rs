@@ -198,7 +198,10 @@ fn methods_lists_builders_and_encoders() {
     let o = bvhlab(&["methods"], dir.path());
     assert!(o.status.success());
     let s = String::from_utf8_lossy(&o.stdout);
-    for n in ["binned-sah", "lbvh", "aac", "ploc", "radius=[10]", "morton", "emc64-var", "bits=[auto]", "grid_bits"] {
+    for n in [
+        "binned-sah", "lbvh", "aac", "ploc", "radius=[10]", "morton", "emc64-var", "bits=[auto]", "grid_bits", "bonsai",
+        "incremental", "ibo", "measure=[comb]", "kensler-sa",
+    ] {
         assert!(s.contains(n), "`{n}` missing in:\n{s}");
     }
 }
@@ -228,4 +231,44 @@ fn eval_bottom_up_with_encoder_prints_encode_fields() {
     let w = stdout_json(&bvhlab(&args, dir.path()));
     assert_eq!((w["computed"].as_u64(), w["cached"].as_u64()), (Some(0), Some(3)));
     assert_eq!(w["bvh_hash"], v["bvh_hash"]);
+}
+
+/// The optimize stage from the command line: ibo on a single-primitive-leaf sweep-SAH tree, then the
+/// compaction; the row carries the optimizer's fields and trace, a re-run is fully cached, and
+/// optimizer mistakes are input errors.
+#[test]
+fn eval_optimize_ibo_then_collapse() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = [
+        "eval", "--scene", "gen:city:blocks=4", "--build", "spatial-median", "--set", "leaf=1", "--optimize", "ibo",
+        "--set", "measure=area", "--compact", "collapse", "--repeat", "2", "--cache", "c", "--json",
+    ];
+    let o = bvhlab(&args, dir.path());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v = stdout_json(&o);
+    assert_eq!(v["optimizer"], "ibo");
+    assert_eq!(v["method"], "spatial-median leaf=1 +ibo area +collapse");
+    assert_eq!(v["valid"], true);
+    assert_eq!(v["computed"], 4, "load, build, optimize, compact");
+    let (built, optimized, fin) =
+        (v["build_sah_cost"].as_f64().unwrap(), v["optimized_sah_cost"].as_f64().unwrap(), v["sah_cost"].as_f64().unwrap());
+    assert!(optimized < built, "ibo improves a spatial-median tree: {built} -> {optimized}");
+    assert!(fin <= optimized, "compaction never raises the cost: {optimized} -> {fin}");
+    let trace = v["optimize_trace"].as_array().unwrap();
+    assert_eq!(trace.len() as u64, v["optimize_passes"].as_u64().unwrap() + 1);
+    // Pass 0 is the input tree (the optimizer sums areas in its own order: equal up to rounding).
+    assert!((trace[0]["sah_cost"].as_f64().unwrap() - built).abs() <= 1e-9 * built, "{v}");
+    let w = stdout_json(&bvhlab(&args, dir.path()));
+    assert_eq!((w["computed"].as_u64(), w["cached"].as_u64()), (Some(0), Some(4)));
+    assert_eq!(w["optimize_trace"], v["optimize_trace"]);
+
+    let bad = |extra: &[&str]| {
+        let mut a = vec!["eval", "--scene", "gen:sphere", "--build", "sweep-sah", "--no-cache"];
+        a.extend_from_slice(extra);
+        bvhlab(&a, dir.path())
+    };
+    assert_input_error(&bad(&["--optimize", "anneal"]), &["anneal", "ibo", "kensler-hc", "kensler-sa"]);
+    assert_input_error(&bad(&["--optimize", "ibo", "--set", "measure=best"]), &["measure", "comb"]);
+    assert_input_error(&bad(&["--optimize", "ibo", "--set", "pr=20"]), &["pr=20", "pt=10"]);
+    assert_input_error(&bad(&["--set", "pt=3"]), &["pt", "optimizer parameter"]);
 }
