@@ -119,6 +119,24 @@ fn main() {
         }
     }
     let mut cur = o.bvh;
+    // after=hc|sa: Kensler rotations on the ibo output (optionally collapsed first: after_collapse).
+    let after = get("after", "");
+    if !after.is_empty() {
+        let mut kc = bvhlab_opt::kensler::KenslerConfig::default();
+        kc.anneal = after == "sa";
+        kc.max_seconds = get("after_seconds", "60").parse().unwrap();
+        let input = if get("after_collapse", "false") == "true" { collapse(&cur, cost) } else { cur.clone() };
+        let t = Instant::now();
+        let k = bvhlab_opt::kensler::optimize(&input, &kc);
+        println!(
+            "after kensler-{after} ({}): {:.3}s passes {} cost {:.3} collapsed {:.3}",
+            if input.nodes.len() == cur.nodes.len() { "leaf=1" } else { "collapsed" },
+            t.elapsed().as_secs_f64(),
+            k.trace.len() - 1,
+            metrics(&k.bvh, cost).sah_cost,
+            metrics(&collapse(&k.bvh, cost), cost).sah_cost
+        );
+    }
     for i in 0..chain {
         let mut c2 = cfg;
         c2.seed = cfg.seed + 1 + i as u64;
