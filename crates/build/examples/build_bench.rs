@@ -17,8 +17,8 @@
 //! binned SAH vs the sequential one). A builder that panics (not implemented yet) gets an `error`
 //! line and the others still run.
 use bvhlab_build::aac::AacConfig;
-use bvhlab_build::bonsai::{self, BonsaiConfig};
 use bvhlab_build::binned_sah::CentroidTermination;
+use bvhlab_build::bonsai::{self, BonsaiConfig};
 use bvhlab_build::ploc::PlocConfig;
 use bvhlab_build::{
     aac, binned_sah, lbvh, ploc, spatial_median, sweep_sah, SortedCodes, TopDownConfig,
@@ -87,7 +87,10 @@ fn run(name: &str, boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> (Bv
                 "bonsai-bp1" => BonsaiConfig::BP1,
                 _ => BonsaiConfig::BP2,
             };
-            let bc = BonsaiConfig { top: *cfg, ..preset };
+            let bc = BonsaiConfig {
+                top: *cfg,
+                ..preset
+            };
             Some(bonsai::build(boxes, centers, &bc))
         }
         _ => None,

@@ -240,14 +240,33 @@ fn split_set(recs: &mut [Rec], cb: BoxA) -> (usize, BoxA, BoxA) {
     debug_assert!(recs.len() >= 2);
     let axis = cb.largest_axis();
     let mid = 0.5 * (cb.min[axis] + cb.max[axis]);
+    // One monomorphized loop per axis (no per-element axis dispatch).
+    let (i, lcb, rcb) = match axis {
+        0 => partition(recs, |r| r.c.x < mid),
+        1 => partition(recs, |r| r.c.y < mid),
+        _ => partition(recs, |r| r.c.z < mid),
+    };
+    if i > 0 && i < recs.len() {
+        return (i, lcb, rcb);
+    }
+    let m = recs.len() / 2;
+    recs.select_nth_unstable_by(m, |a, b| {
+        a.c[axis].total_cmp(&b.c[axis]).then(a.idx.cmp(&b.idx))
+    });
+    (m, centroid_bounds(&recs[..m]), centroid_bounds(&recs[m..]))
+}
+
+/// Hoare partition (`is_left` first) gathering both sides' centroid bounds; returns the left size.
+#[inline(always)]
+fn partition(recs: &mut [Rec], is_left: impl Fn(&Rec) -> bool) -> (usize, BoxA, BoxA) {
     let (mut lcb, mut rcb) = (BoxA::EMPTY, BoxA::EMPTY);
     let (mut i, mut j) = (0, recs.len());
     loop {
-        while i < j && recs[i].c[axis] < mid {
+        while i < j && is_left(&recs[i]) {
             lcb.grow_point(recs[i].c.into());
             i += 1;
         }
-        while i < j && !(recs[j - 1].c[axis] < mid) {
+        while i < j && !is_left(&recs[j - 1]) {
             rcb.grow_point(recs[j - 1].c.into());
             j -= 1;
         }
@@ -260,14 +279,7 @@ fn split_set(recs: &mut [Rec], cb: BoxA) -> (usize, BoxA, BoxA) {
         i += 1;
         j -= 1;
     }
-    if i > 0 && i < recs.len() {
-        return (i, lcb, rcb);
-    }
-    let m = recs.len() / 2;
-    recs.select_nth_unstable_by(m, |a, b| {
-        a.c[axis].total_cmp(&b.c[axis]).then(a.idx.cmp(&b.idx))
-    });
-    (m, centroid_bounds(&recs[..m]), centroid_bounds(&recs[m..]))
+    (i, lcb, rcb)
 }
 
 /// Mini-tree pruning (thesis 3.3.3) of mini tree `tree`: its top-tree items.
@@ -393,8 +405,9 @@ fn assemble(n: usize, minis: &[MiniTree], items: &[Item], top: &[Node], order: &
     // Blocks and primitive ranges both appear in increasing order in `placed`: carve the arrays
     // into disjoint slices and copy in parallel.
     let mut prim_indices = vec![0u32; n];
-    let mut jobs: Vec<(&mut [Node], &mut [u32], usize, usize, usize)> =
-        Vec::with_capacity(placed.len());
+    // (nodes of the block, primitive slots, block start, first primitive, item)
+    type Job<'a> = (&'a mut [Node], &'a mut [u32], usize, usize, usize);
+    let mut jobs: Vec<Job> = Vec::with_capacity(placed.len());
     let (mut rest_n, mut rest_p): (&mut [Node], &mut [u32]) = (&mut nodes, &mut prim_indices);
     let (mut pos_n, mut pos_p) = (0, 0);
     for &(_, block, prim0, it) in &placed {
