@@ -4,7 +4,7 @@
 //! `cargo run --release -p bvhlab-opt --example inc_bench -- SCENE [runs=3] [batch=8000]
 //!  [ofrac=0.01] [coh=1.5] [order=input|shuffle|morton|reverse] [kensler=none|hc|sa|both]
 //!  [sa_seconds=60] [sa_passes=100] [t0=0.01] [cooling=0.9] [inc=true] [tscale=root|node] [changed_only=false]
-//!  [k_of_tree=false] [final_pass=false]`
+//!  [k_of_tree=false] [final_pass=false] [batch_of_insertions=false]`
 //!
 //! Incremental: median build time of `runs` builds, the SAH cost of the raw tree (one primitive
 //! per leaf) and after SAH compaction (`collapse`, c_T=3, c_I=2, thesis table 10's number), and
@@ -66,6 +66,7 @@ fn main() {
         changed_only: get("changed_only", "false").parse().unwrap(),
         k_of_tree: get("k_of_tree", "false").parse().unwrap(),
         final_pass: get("final_pass", "false").parse().unwrap(),
+        batch_of_insertions: get("batch_of_insertions", "false").parse().unwrap(),
     };
 
     let scene = bvhlab_geom::load_scene(&spec).expect("load");

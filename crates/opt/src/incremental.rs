@@ -79,6 +79,8 @@ pub struct Variant {
     pub k_of_tree: bool,
     /// Also run a pass after the last, incomplete batch.
     pub final_pass: bool,
+    /// A batch counts insertions (a coherent pair is one) instead of primitives.
+    pub batch_of_insertions: bool,
 }
 
 /// Thesis eq. 13: R_coh(x, y) < R_max.
@@ -194,7 +196,7 @@ pub fn build_variant(boxes: &[Aabb], cfg: &IncConfig, var: Variant) -> (Bvh, Inc
             cached.push(sub);
         }
         let before = inserted;
-        inserted += count;
+        inserted += if var.batch_of_insertions { 1 } else { count };
         if (inserted / batch > before / batch && inserted < n) || (var.final_pass && inserted == n)
         {
             let base = if var.k_of_tree {
