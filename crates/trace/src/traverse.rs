@@ -287,7 +287,10 @@ fn trace_one(
                             };
                             return (hit, steps, tests);
                         }
-                        Some((n, entry)) if entry <= best.t => {
+                        // Same robustness margin as the child test (`hit` scales `far`, which
+                        // includes tmax = best.t): a flat box's entry can round one ulp above an
+                        // equal-t hit, and a tie with a lower triangle index must still be found.
+                        Some((n, entry)) if entry <= best.t * SLAB_ROBUST => {
                             cur = n;
                             break;
                         }

@@ -251,3 +251,26 @@ fn identical_at_any_thread_count() {
     assert_eq!(a.steps, b.steps);
     assert_eq!(a.intersections, b.intersections);
 }
+
+/// Regression (found by the Bonsai tests): duplicate triangles in sibling subtrees under a flat box.
+/// The popped node's entry distance rounded one ulp above the equal-t hit and the node was culled,
+/// so the lower-index tie went missing (ray 51: prim 747 instead of 119). The pop test now uses the
+/// child test's slab margin; traversal must equal brute force exactly, ties included.
+#[test]
+fn equal_t_ties_behind_flat_boxes_are_found() {
+    let scene = bvhlab_geom::load_scene("gen:degenerate:n=2000").unwrap();
+    let (boxes, centers) = scene.boxes_and_centers();
+    let cfg = bvhlab_build::bonsai::BonsaiConfig {
+        n: 16,
+        t: 0.1,
+        prune: true,
+        top: bvhlab_build::TopDownConfig { leaf: 1, ..Default::default() },
+    };
+    let bvh = bvhlab_build::bonsai::build(&boxes, &centers, &cfg);
+    let tris = &scene.triangles;
+    let all = bounds_of(tris, &(0..tris.len() as u32).collect::<Vec<_>>());
+    let core = bounds_of(tris, &(0..tris.len() as u32 - 1).collect::<Vec<_>>());
+    let mut rays = random_rays(&all, 0.0, 1000, 7);
+    rays.extend(random_rays(&core, 0.0, 1000, 8));
+    assert_same(&bvh, tris, &rays);
+}
