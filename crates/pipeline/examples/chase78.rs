@@ -1,0 +1,94 @@
+//! Searches chains of registry builders and optimizers for low final SAH cost (issue 4, "beyond
+//! the anchors": conference below 78).
+//!
+//! `cargo run --release -p bvhlab-pipeline --example chase78 -- SCENE CHAIN [CHAIN...]`
+//!
+//! A CHAIN is stages separated by `/`: first the builder `NAME[,k=v...]` (builder, encoder and
+//! cost parameters; `encode=NAME` picks the encoder of a code builder), then any of
+//! `ibo[,k=v...]`, `kensler-hc[,k=v...]`, `kensler-sa[,k=v...]`, `collapse`. The builder's RAW
+//! tree is used (the registry's `construct` would collapse lbvh/aac/ploc before the optimizer);
+//! write `collapse` as the second stage to start from the tree the pipeline optimizes.
+//! Prints the cost after each stage and one summary line per chain; the final tree is always
+//! collapsed (`bvhlab_bvh::collapse`) and validated.
+use bvhlab_bvh::{collapse::collapse, metrics, validate, Bvh, CostParams};
+use bvhlab_pipeline::registry::Registry;
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+fn parse_stage(s: &str) -> (String, BTreeMap<String, String>) {
+    let mut it = s.split(',');
+    let name = it.next().unwrap_or("").to_string();
+    let mut raw = BTreeMap::new();
+    for kv in it {
+        let (k, v) = kv.split_once('=').unwrap_or_else(|| panic!("bad parameter `{kv}` in `{s}`"));
+        raw.insert(k.to_string(), v.to_string());
+    }
+    (name, raw)
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let spec = args.first().expect("scene path or gen spec").clone();
+    let cost = CostParams::default();
+    let scene = bvhlab_geom::load_scene(&spec).expect("load");
+    let (boxes, centers) = scene.boxes_and_centers();
+    println!("scene {spec}: {} triangles", boxes.len());
+    let reg = Registry::standard();
+    for chain in &args[1..] {
+        let t_chain = Instant::now();
+        let stages: Vec<&str> = chain.split('/').collect();
+        let (builder, mut braw) = parse_stage(stages[0]);
+        let encode = braw.remove("encode");
+        let ch = match reg.resolve_chain(&builder, encode.as_deref(), None, &braw, cost) {
+            Ok(c) => c,
+            Err(e) => {
+                println!("{chain}: error {e}");
+                continue;
+            }
+        };
+        let t = Instant::now();
+        let info = reg.get(&builder).expect("builder");
+        let enc = ch.encoder.as_ref().map(|e| bvhlab_morton::encode_cells(&boxes, &centers, &e.config, e.cell_frame));
+        let codes = enc.as_ref().map(|e| bvhlab_build::SortedCodes {
+            order: &e.order,
+            codes: &e.codes,
+            code_bits: e.code_bits,
+        });
+        let mut bvh: Bvh = (info.run)(&boxes, &centers, codes.as_ref(), &ch.build);
+        let build_cost = metrics(&bvh, ch.build.cost).sah_cost;
+        println!("  {chain} | build {builder}: {build_cost:.3} ({:.1}s)", t.elapsed().as_secs_f64());
+        let mut costs = vec![format!("{build_cost:.3}")];
+        for st in &stages[1..] {
+            let t = Instant::now();
+            let (name, raw) = parse_stage(st);
+            if name == "collapse" {
+                bvh = collapse(&bvh, ch.build.cost);
+            } else {
+                let r = match reg.resolve_optimizer(&name, &raw, ch.build.cost) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        println!("{chain}: error {e}");
+                        break;
+                    }
+                };
+                let o = (reg.optimizer(&name).expect("optimizer").run)(&bvh, &r);
+                println!("    {st}: passes {} returned {} stop {:?}", o.trace.len(), o.returned_pass, o.stop);
+                bvh = o.bvh;
+            }
+            let c = metrics(&bvh, ch.build.cost).sah_cost;
+            println!("  {chain} | {st}: {c:.3} ({:.1}s)", t.elapsed().as_secs_f64());
+            costs.push(format!("{c:.3}"));
+        }
+        let fin = collapse(&bvh, ch.build.cost);
+        let fc = metrics(&fin, ch.build.cost).sah_cost;
+        let ok = match validate(&fin, &boxes) {
+            Ok(()) => "valid".to_string(),
+            Err(e) => format!("INVALID: {e}"),
+        };
+        println!(
+            "CHAIN {chain} | {} | final collapsed {fc:.4} | {ok} | {:.1}s",
+            costs.join(" -> "),
+            t_chain.elapsed().as_secs_f64()
+        );
+    }
+}
