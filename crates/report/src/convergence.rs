@@ -70,13 +70,21 @@ pub struct Group {
 
 /// The first pass whose cost reaches `start - frac (start - final)`; `None` if the cost did not
 /// fall (final >= start) or no pass reaches it (a final cost from a tree the trace does not show).
-pub fn pass_to_fraction(points: &[TracePoint], start: f64, fin: f64, frac: f64) -> Option<(u32, f64)> {
+pub fn pass_to_fraction(
+    points: &[TracePoint],
+    start: f64,
+    fin: f64,
+    frac: f64,
+) -> Option<(u32, f64)> {
     let reduction = start - fin;
-    if !(reduction > 0.0) {
+    if reduction.is_nan() || reduction <= 0.0 {
         return None;
     }
     let target = start - frac * reduction;
-    points.iter().find(|p| p.sah_cost <= target).map(|p| (p.pass, p.seconds))
+    points
+        .iter()
+        .find(|p| p.sah_cost <= target)
+        .map(|p| (p.pass, p.seconds))
 }
 
 /// The parts of a chain label (`builder params [· encoder] +optimizer label [+compact]`): the
@@ -90,7 +98,10 @@ pub fn label_parts(r: &ResultRow) -> (String, String) {
         .find(|p| !opt.is_empty() && p.starts_with(opt))
         .map(|p| p.to_string())
         .unwrap_or_else(|| opt.to_string());
-    (parts.first().map(|p| p.to_string()).unwrap_or_default(), opt_label)
+    (
+        parts.first().map(|p| p.to_string()).unwrap_or_default(),
+        opt_label,
+    )
 }
 
 fn initial_key(r: &ResultRow) -> String {
@@ -105,10 +116,15 @@ fn initial_key(r: &ResultRow) -> String {
 pub fn groups(rows: &[ResultRow]) -> Vec<Group> {
     let mut out: Vec<Group> = Vec::new();
     for r in rows {
-        let Some(opt) = r.optimizer.as_deref() else { continue };
+        let Some(opt) = r.optimizer.as_deref() else {
+            continue;
+        };
         let ik = initial_key(r);
         let ck = format!("{opt}|{}", r.optimize_params.as_deref().unwrap_or(""));
-        let gi = match out.iter().position(|g| g.scene == r.scene && g.initial_key == ik) {
+        let gi = match out
+            .iter()
+            .position(|g| g.scene == r.scene && g.initial_key == ik)
+        {
             Some(i) => i,
             None => {
                 out.push(Group {
@@ -135,7 +151,11 @@ pub fn groups(rows: &[ResultRow]) -> Vec<Group> {
             .as_deref()
             .unwrap_or(&[])
             .iter()
-            .map(|p| TracePoint { pass: p.pass, seconds: p.seconds, sah_cost: p.sah_cost })
+            .map(|p| TracePoint {
+                pass: p.pass,
+                seconds: p.seconds,
+                sah_cost: p.sah_cost,
+            })
             .collect();
         let start_cost = points
             .first()
@@ -166,8 +186,14 @@ pub fn groups(rows: &[ResultRow]) -> Vec<Group> {
     }
     // Baselines: rows of the same initial tree without an optimizer.
     for g in out.iter_mut() {
-        for r in rows.iter().filter(|r| r.optimizer.is_none() && r.scene == g.scene && initial_key(r) == g.initial_key) {
-            let built = r.build_sah_cost.unwrap_or(if r.compact == "none" { r.sah_cost } else { f64::NAN });
+        for r in rows.iter().filter(|r| {
+            r.optimizer.is_none() && r.scene == g.scene && initial_key(r) == g.initial_key
+        }) {
+            let built = r.build_sah_cost.unwrap_or(if r.compact == "none" {
+                r.sah_cost
+            } else {
+                f64::NAN
+            });
             let ocost = (r.compact != "none").then_some(r.sah_cost);
             match &mut g.baseline {
                 None => g.baseline = Some((built, ocost, r.total_build_seconds)),
@@ -193,7 +219,11 @@ mod tests {
         costs
             .iter()
             .enumerate()
-            .map(|(i, &c)| TracePoint { pass: i as u32, seconds: i as f64 * 0.5, sah_cost: c })
+            .map(|(i, &c)| TracePoint {
+                pass: i as u32,
+                seconds: i as f64 * 0.5,
+                sah_cost: c,
+            })
             .collect()
     }
 
@@ -206,8 +236,14 @@ mod tests {
         let p = pts(&[100.0, 54.0, 70.0, 50.0]);
         assert_eq!(pass_to_fraction(&p, 100.0, 50.0, 0.9), Some((1, 0.5)));
         // No reduction (or a rise): none.
-        assert_eq!(pass_to_fraction(&pts(&[100.0, 100.0]), 100.0, 100.0, 0.9), None);
-        assert_eq!(pass_to_fraction(&pts(&[100.0, 101.0]), 100.0, 101.0, 0.9), None);
+        assert_eq!(
+            pass_to_fraction(&pts(&[100.0, 100.0]), 100.0, 100.0, 0.9),
+            None
+        );
+        assert_eq!(
+            pass_to_fraction(&pts(&[100.0, 101.0]), 100.0, 101.0, 0.9),
+            None
+        );
         assert_eq!(pass_to_fraction(&pts(&[100.0]), 100.0, f64::NAN, 0.9), None);
     }
 
@@ -218,8 +254,14 @@ mod tests {
             optimizer: Some("ibo".into()),
             ..Default::default()
         };
-        assert_eq!(label_parts(&r), ("sweep-sah leaf=1".to_string(), "ibo comb".to_string()));
-        let r = ResultRow { method: "sweep-sah leaf=1 +collapse".into(), ..Default::default() };
+        assert_eq!(
+            label_parts(&r),
+            ("sweep-sah leaf=1".to_string(), "ibo comb".to_string())
+        );
+        let r = ResultRow {
+            method: "sweep-sah leaf=1 +collapse".into(),
+            ..Default::default()
+        };
         assert_eq!(label_parts(&r).0, "sweep-sah leaf=1");
     }
 }

@@ -18,11 +18,24 @@ pub fn figure(g: &Group, keys: &[String]) -> ConvergenceFigure {
             .curves
             .iter()
             .map(|c| {
-                let at = |pass: u32| c.points.iter().find(|p| p.pass == pass).map(|p| (p.pass, p.seconds, p.sah_cost));
+                let at = |pass: u32| {
+                    c.points
+                        .iter()
+                        .find(|p| p.pass == pass)
+                        .map(|p| (p.pass, p.seconds, p.sah_cost))
+                };
                 ConvCurve {
-                    label: if c.valid { c.label.clone() } else { format!("{} (INVALID)", c.label) },
+                    label: if c.valid {
+                        c.label.clone()
+                    } else {
+                        format!("{} (INVALID)", c.label)
+                    },
                     color_index: keys.iter().position(|k| *k == c.key).unwrap_or(0),
-                    points: c.points.iter().map(|p| (p.pass, p.seconds, p.sah_cost)).collect(),
+                    points: c
+                        .points
+                        .iter()
+                        .map(|p| (p.pass, p.seconds, p.sah_cost))
+                        .collect(),
                     mark: c.pass90.and_then(|(p, _)| at(p)),
                 }
             })
@@ -91,7 +104,9 @@ fn num(v: f64) -> String {
 }
 
 fn pct(v: f64) -> String {
-    if v.is_finite() {
+    if v.is_finite() && v.abs() < 0.05 {
+        "0.0%".into()
+    } else if v.is_finite() {
         format!("{v:+.1}%")
     } else {
         String::new()
@@ -103,7 +118,10 @@ pub fn flag(diff_percent: f64) -> String {
     if diff_percent.is_finite() && diff_percent.abs() <= WITHIN_PERCENT {
         "<span class=\"ok\">&#10003;</span>".into()
     } else if diff_percent.is_finite() {
-        format!("<span class=\"warn\">&#9873; |diff| &gt; {}%</span>", fmt_num(WITHIN_PERCENT))
+        format!(
+            "<span class=\"warn\">&#9873; |diff| &gt; {}%</span>",
+            fmt_num(WITHIN_PERCENT)
+        )
     } else {
         String::new()
     }
@@ -115,9 +133,9 @@ fn convergence_table(groups: &[Group]) -> String {
         h,
         "<h3>Convergence per optimizer</h3>\n<p>cost = SAH cost before compaction (Bittner's \"cost\"); ocost = after \
          SAH compaction when a chain of the experiment compacts; update s = optimizer seconds; build s = build + \
-         optimize seconds (medians); pass {p:.0}% = first pass reaching {p:.0}% of the final reduction. Rows \"(none)\" \
+         optimize seconds (medians); cost change = (cost &minus; cost start) / cost start; pass {p:.0}% = first pass reaching {p:.0}% of the final reduction. Rows \"(none)\" \
          are the initial tree without optimizer.</p>\n<table><tr><th>scene</th><th>initial tree</th><th>optimizer</th>\
-         <th>passes</th><th>stop</th><th>cost start</th><th>cost</th><th>ocost</th><th>reduction</th><th>update s</th>\
+         <th>passes</th><th>stop</th><th>cost start</th><th>cost</th><th>ocost</th><th>cost change</th><th>update s</th>\
          <th>build s</th><th>pass {p:.0}%</th><th>s at {p:.0}%</th></tr>\n",
         p = REDUCTION_FRACTION * 100.0
     );
@@ -169,12 +187,14 @@ fn convergence_table(groups: &[Group]) -> String {
 /// Thesis tables 38 (cost after IBO) and 20 (after / before, %) side by side per (scene, method).
 fn ibo_thesis_table(rep: &ReferenceReport) -> String {
     let mut cells: Vec<(String, String, String)> = Vec::new();
-    for c in rep
-        .comparisons
-        .iter()
-        .filter(|c| c.metric == reference::IBO_COST_LABEL || c.metric == reference::IBO_RELATIVE_LABEL)
-    {
-        let k = (c.scene_name.clone(), c.thesis_scene.clone(), c.abbrev.clone());
+    for c in rep.comparisons.iter().filter(|c| {
+        c.metric == reference::IBO_COST_LABEL || c.metric == reference::IBO_RELATIVE_LABEL
+    }) {
+        let k = (
+            c.scene_name.clone(),
+            c.thesis_scene.clone(),
+            c.abbrev.clone(),
+        );
         if !cells.contains(&k) {
             cells.push(k);
         }
@@ -203,7 +223,12 @@ fn ibo_thesis_table(rep: &ReferenceReport) -> String {
                 .iter()
                 .find(|c| c.metric == label && c.scene_name == *scene && c.abbrev == *abbrev)
         };
-        let mut row = format!("<tr><td>{}</td><td>{}</td><td>{}</td>", escape(scene), escape(ts), escape(abbrev));
+        let mut row = format!(
+            "<tr><td>{}</td><td>{}</td><td>{}</td>",
+            escape(scene),
+            escape(ts),
+            escape(abbrev)
+        );
         let mut method = String::new();
         for label in [reference::IBO_COST_LABEL, reference::IBO_RELATIVE_LABEL] {
             match get(label) {
@@ -251,12 +276,17 @@ fn bittner_table(rep: &ReferenceReport) -> String {
          <th>paper</th><th>build_s x SAH build</th><th>paper</th></tr>\n",
         fmt_num(WITHIN_PERCENT)
     );
-    let diff = |o: f64, p: f64| if p != 0.0 && o.is_finite() && p.is_finite() { (o - p) / p * 100.0 } else { f64::NAN };
+    let diff = |o: f64, p: f64| {
+        if p != 0.0 && o.is_finite() && p.is_finite() {
+            (o - p) / p * 100.0
+        } else {
+            f64::NAN
+        }
+    };
     for b in &rep.bittner {
-        let base = rep
-            .bittner
-            .iter()
-            .find(|x| x.scene_name == b.scene_name && x.paper_method == reference::BITTNER_METHODS[0].abbrev);
+        let base = rep.bittner.iter().find(|x| {
+            x.scene_name == b.scene_name && x.paper_method == reference::BITTNER_METHODS[0].abbrev
+        });
         let rel = |v: f64, base: Option<f64>| match base {
             Some(bv) if bv > 0.0 && v.is_finite() => format!("{:.2}x", v / bv),
             _ => String::new(),

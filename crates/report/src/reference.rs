@@ -595,7 +595,10 @@ fn optional_table(dir: &Path, file: &str, what: &str, rep: &mut ReferenceReport)
 
 /// A Bittner 2013 table row: scene, triangles in thousands, method, then cost, ocost, update_s,
 /// build_s.
-fn read_bittner(path: &Path) -> Result<Vec<(String, u64, String, [f64; 4])>, String> {
+/// (scene, triangles in thousands, method, [cost, ocost, update_s, build_s]).
+type BittnerRow = (String, u64, String, [f64; 4]);
+
+fn read_bittner(path: &Path) -> Result<Vec<BittnerRow>, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let mut lines = text.lines().filter(|l| !l.trim().is_empty());
     let header: Vec<&str> = lines.next().unwrap_or("").split('\t').map(str::trim).collect();

@@ -31,7 +31,14 @@ fn name(scene: &str) -> String {
         .replace("gen:", "")
 }
 
-fn base(scene: &str, builder: &str, params: &str, label: &str, compact: &str, cost: f64) -> ResultRow {
+fn base(
+    scene: &str,
+    builder: &str,
+    params: &str,
+    label: &str,
+    compact: &str,
+    cost: f64,
+) -> ResultRow {
     let mut method = label.to_string();
     if compact != "none" {
         method.push_str(&format!(" +{compact}"));
@@ -56,8 +63,10 @@ fn base(scene: &str, builder: &str, params: &str, label: &str, compact: &str, co
     }
 }
 
-const IBO: &str = "ibo_frac=0.01,keep_best=true,max_passes=0,max_seconds=0,measure=MEASURE,pr=5,pt=10,seed=1";
+const IBO: &str =
+    "ibo_frac=0.01,keep_best=true,max_passes=0,max_seconds=0,measure=MEASURE,pr=5,pt=10,seed=1";
 
+#[allow(clippy::too_many_arguments)]
 /// A chain with an optimizer: costs per pass (pass 0 = the built tree), 0.1 s per pass; the
 /// compacted cost is `ocost`.
 fn optimized(
@@ -99,14 +108,34 @@ fn optimized(
     r
 }
 
-fn ibo(scene: &str, builder: &str, params: &str, label: &str, measure: &str, costs: &[f64], ocost: f64) -> ResultRow {
+fn ibo(
+    scene: &str,
+    builder: &str,
+    params: &str,
+    label: &str,
+    measure: &str,
+    costs: &[f64],
+    ocost: f64,
+) -> ResultRow {
     let p = IBO.replace("MEASURE", measure);
-    optimized(scene, builder, params, label, "ibo", &p, &format!("ibo {measure}"), costs, ocost)
+    optimized(
+        scene,
+        builder,
+        params,
+        label,
+        "ibo",
+        &p,
+        &format!("ibo {measure}"),
+        costs,
+        ocost,
+    )
 }
 
 /// Geometric approach from `start` to `end`: pass i has covered 1 - q^i of the reduction.
 fn decay(start: f64, end: f64, q: f64, passes: usize) -> Vec<f64> {
-    (0..=passes).map(|i| end + (start - end) * q.powi(i as i32)).collect()
+    (0..=passes)
+        .map(|i| end + (start - end) * q.powi(i as i32))
+        .collect()
 }
 
 fn rows() -> Vec<ResultRow> {
@@ -114,48 +143,174 @@ fn rows() -> Vec<ResultRow> {
     for scene in [DRAGON, CONFERENCE] {
         let conf = scene == CONFERENCE;
         // Table 10 methods (no optimizer): FSW, BIN, INC, BP0-2.
-        rows.push(base(scene, "sweep-sah", "leaf=2", "sweep-sah", "none", if conf { 92.6 } else { 138.2 }));
-        rows.push(base(scene, "binned-sah", "bins=16,centroid_stop=any-axis,leaf=2", "binned-sah bins=16", "none", if conf { 136.1 } else { 144.8 }));
-        let mut inc = base(scene, "incremental", "batch=8000,coh=1.5,ofrac=0.01", "incremental", "collapse", if conf { 84.1 } else { 197.5 });
+        rows.push(base(
+            scene,
+            "sweep-sah",
+            "leaf=2",
+            "sweep-sah",
+            "none",
+            if conf { 92.6 } else { 138.2 },
+        ));
+        rows.push(base(
+            scene,
+            "binned-sah",
+            "bins=16,centroid_stop=any-axis,leaf=2",
+            "binned-sah bins=16",
+            "none",
+            if conf { 136.1 } else { 144.8 },
+        ));
+        let mut inc = base(
+            scene,
+            "incremental",
+            "batch=8000,coh=1.5,ofrac=0.01",
+            "incremental",
+            "collapse",
+            if conf { 84.1 } else { 197.5 },
+        );
         inc.build_sah_cost = Some(if conf { 100.0 } else { 230.0 });
         rows.push(inc);
-        rows.push(base(scene, "bonsai", "leaf=2,n=512,prune=false", "bonsai n=512", "none", if conf { 109.1 } else { 143.7 }));
-        rows.push(base(scene, "bonsai", "leaf=2,n=512,prune=true,t=0.1", "bonsai n=512 prune t=0.1", "none", if conf { 95.7 } else { 142.1 }));
+        rows.push(base(
+            scene,
+            "bonsai",
+            "leaf=2,n=512,prune=false",
+            "bonsai n=512",
+            "none",
+            if conf { 109.1 } else { 143.7 },
+        ));
+        rows.push(base(
+            scene,
+            "bonsai",
+            "leaf=2,n=512,prune=true,t=0.1",
+            "bonsai n=512 prune t=0.1",
+            "none",
+            if conf { 95.7 } else { 142.1 },
+        ));
         // BP2 on the dragon 5% off the thesis: must be flagged.
-        rows.push(base(scene, "bonsai", "leaf=2,n=4096,prune=true,t=0.01", "bonsai n=4096 prune t=0.01", "none", if conf { 94.8 } else { 141.4 * 1.05 }));
+        rows.push(base(
+            scene,
+            "bonsai",
+            "leaf=2,n=4096,prune=true,t=0.01",
+            "bonsai n=4096 prune t=0.01",
+            "none",
+            if conf { 94.8 } else { 141.4 * 1.05 },
+        ));
         // The SAH-built initial tree (Bittner's "SAH build"): cost 145.4 leaf=1, 138.1 compacted.
-        let mut sah = base(scene, "sweep-sah", "leaf=1", "sweep-sah leaf=1", "collapse", if conf { 93.0 } else { 138.1 });
+        let mut sah = base(
+            scene,
+            "sweep-sah",
+            "leaf=1",
+            "sweep-sah leaf=1",
+            "collapse",
+            if conf { 93.0 } else { 138.1 },
+        );
         sah.build_sah_cost = Some(if conf { 99.0 } else { 145.4 });
         rows.push(sah);
         let (s0, fin) = if conf { (99.0, 86.0) } else { (145.4, 144.0) };
         // comb converges fast (q = 0.5), random slowly (q = 0.8); sum in between.
-        rows.push(ibo(scene, "sweep-sah", "leaf=1", "sweep-sah leaf=1", "comb", &decay(s0, fin, 0.5, 12), if conf { 80.0 } else { 137.0 }));
-        rows.push(ibo(scene, "sweep-sah", "leaf=1", "sweep-sah leaf=1", "random", &decay(s0, fin, 0.8, 30), if conf { 80.5 } else { 137.9 }));
-        rows.push(ibo(scene, "sweep-sah", "leaf=1", "sweep-sah leaf=1", "sum", &decay(s0, fin, 0.7, 20), if conf { 81.0 } else { 138.0 }));
-        rows.push(optimized(scene, "sweep-sah", "leaf=1", "sweep-sah leaf=1", "kensler-hc", "keep_best=true,max_passes=0,max_seconds=0,seed=1", "kensler-hc", &decay(s0, s0 - 0.5, 0.5, 5), 138.0));
-        rows.push(optimized(scene, "sweep-sah", "leaf=1", "sweep-sah leaf=1", "kensler-sa", "cooling=0.9,keep_best=true,max_passes=100,max_seconds=60,seed=1,t0=0.01", "kensler-sa", &[s0, s0 + 1.0, s0], 138.1));
+        rows.push(ibo(
+            scene,
+            "sweep-sah",
+            "leaf=1",
+            "sweep-sah leaf=1",
+            "comb",
+            &decay(s0, fin, 0.5, 12),
+            if conf { 80.0 } else { 137.0 },
+        ));
+        rows.push(ibo(
+            scene,
+            "sweep-sah",
+            "leaf=1",
+            "sweep-sah leaf=1",
+            "random",
+            &decay(s0, fin, 0.8, 30),
+            if conf { 80.5 } else { 137.9 },
+        ));
+        rows.push(ibo(
+            scene,
+            "sweep-sah",
+            "leaf=1",
+            "sweep-sah leaf=1",
+            "sum",
+            &decay(s0, fin, 0.7, 20),
+            if conf { 81.0 } else { 138.0 },
+        ));
+        rows.push(optimized(
+            scene,
+            "sweep-sah",
+            "leaf=1",
+            "sweep-sah leaf=1",
+            "kensler-hc",
+            "keep_best=true,max_passes=0,max_seconds=0,seed=1",
+            "kensler-hc",
+            &decay(s0, s0 - 0.5, 0.5, 5),
+            138.0,
+        ));
+        rows.push(optimized(
+            scene,
+            "sweep-sah",
+            "leaf=1",
+            "sweep-sah leaf=1",
+            "kensler-sa",
+            "cooling=0.9,keep_best=true,max_passes=100,max_seconds=60,seed=1,t0=0.01",
+            "kensler-sa",
+            &[s0, s0 + 1.0, s0],
+            138.1,
+        ));
         // A spatial-median initial tree: much higher start (log y in the plot).
-        rows.push(ibo(scene, "spatial-median", "leaf=1", "spatial-median leaf=1", "comb", &decay(700.0, fin + 1.0, 0.6, 25), 81.0));
+        rows.push(ibo(
+            scene,
+            "spatial-median",
+            "leaf=1",
+            "spatial-median leaf=1",
+            "comb",
+            &decay(700.0, fin + 1.0, 0.6, 25),
+            81.0,
+        ));
         // Thesis 5.2: BIN (leaf 2) and INC with ibo + collapse.
-        rows.push(ibo(scene, "binned-sah", "bins=16,centroid_stop=any-axis,leaf=2", "binned-sah bins=16", "comb", &[140.0, 120.0, 110.0], if conf { 107.2 } else { 140.4 }));
-        rows.push(ibo(scene, "incremental", "batch=8000,coh=1.5,ofrac=0.01", "incremental", "comb", &[230.0, 170.0, 150.0], if conf { 80.0 } else { 139.7 }));
+        rows.push(ibo(
+            scene,
+            "binned-sah",
+            "bins=16,centroid_stop=any-axis,leaf=2",
+            "binned-sah bins=16",
+            "comb",
+            &[140.0, 120.0, 110.0],
+            if conf { 107.2 } else { 140.4 },
+        ));
+        rows.push(ibo(
+            scene,
+            "incremental",
+            "batch=8000,coh=1.5,ofrac=0.01",
+            "incremental",
+            "comb",
+            &[230.0, 170.0, 150.0],
+            if conf { 80.0 } else { 139.7 },
+        ));
     }
     rows
 }
 
 fn reference_dir() -> Option<&'static Path> {
     let p = Path::new("/work/shared/reference");
-    (p.join(reference::IBO_COST_TABLE).exists() && p.join(reference::BITTNER_TABLE).exists()).then_some(p)
+    (p.join(reference::IBO_COST_TABLE).exists() && p.join(reference::BITTNER_TABLE).exists())
+        .then_some(p)
 }
 
 #[test]
 fn optimizer_is_part_of_the_method_identity() {
     let r = rows();
-    let keys: Vec<String> = r.iter().filter(|x| x.scene == DRAGON).map(method_key).collect();
+    let keys: Vec<String> = r
+        .iter()
+        .filter(|x| x.scene == DRAGON)
+        .map(method_key)
+        .collect();
     let mut dedup = keys.clone();
     dedup.sort();
     dedup.dedup();
-    assert_eq!(dedup.len(), keys.len(), "every chain of a scene has its own key: {keys:?}");
+    assert_eq!(
+        dedup.len(),
+        keys.len(),
+        "every chain of a scene has its own key: {keys:?}"
+    );
 }
 
 #[test]
@@ -165,13 +320,32 @@ fn convergence_groups_and_ninety_percent_pass() {
     // Per scene: sweep-sah leaf=1, spatial-median, binned-sah, incremental.
     assert_eq!(groups.len(), 8);
     let g = &groups[0];
-    assert_eq!((g.scene.as_str(), g.initial.as_str()), (DRAGON, "sweep-sah leaf=1"));
+    assert_eq!(
+        (g.scene.as_str(), g.initial.as_str()),
+        (DRAGON, "sweep-sah leaf=1")
+    );
     let labels: Vec<&str> = g.curves.iter().map(|c| c.label.as_str()).collect();
-    assert_eq!(labels, ["ibo comb", "ibo random", "ibo sum", "kensler-hc", "kensler-sa"]);
+    assert_eq!(
+        labels,
+        [
+            "ibo comb",
+            "ibo random",
+            "ibo sum",
+            "kensler-hc",
+            "kensler-sa"
+        ]
+    );
     // Baseline: the same initial tree without optimizer (cost as built, compacted).
     assert_eq!(g.baseline.map(|b| (b.0, b.1)), Some((145.4, Some(138.1))));
     // 1 - q^i >= 0.9: comb (q = 0.5) at pass 4, random (q = 0.8) at pass 11, sum (0.7) at 7.
-    let pass = |l: &str| g.curves.iter().find(|c| c.label == l).unwrap().pass90.map(|p| p.0);
+    let pass = |l: &str| {
+        g.curves
+            .iter()
+            .find(|c| c.label == l)
+            .unwrap()
+            .pass90
+            .map(|p| p.0)
+    };
     assert_eq!(pass("ibo comb"), Some(4));
     assert_eq!(pass("ibo random"), Some(11));
     assert_eq!(pass("ibo sum"), Some(7));
@@ -199,7 +373,12 @@ fn thesis_tables_and_bittner() {
     // Table 10: FSW is the leaf=2 chain without optimizer, never an ibo chain.
     let fsw = get("SAH cost", "stanford_dragon", "FSW");
     assert_eq!((fsw.ours, fsw.method.as_str()), (138.2, "sweep-sah"));
-    for (abbrev, paper) in [("BP0", 143.7), ("BP1", 142.1), ("BP2", 141.4), ("INC", 197.5)] {
+    for (abbrev, paper) in [
+        ("BP0", 143.7),
+        ("BP1", 142.1),
+        ("BP2", 141.4),
+        ("INC", 197.5),
+    ] {
         let c = get("SAH cost", "stanford_dragon", abbrev);
         assert_eq!(c.paper, paper, "{abbrev}");
         assert_eq!(c.within(), abbrev != "BP2", "{abbrev}: {c:?}");
@@ -216,15 +395,25 @@ fn thesis_tables_and_bittner() {
     assert!(c.method.ends_with("/ sweep-sah"), "{}", c.method);
     let c = get(reference::IBO_RELATIVE_LABEL, "stanford_dragon", "INC");
     assert!((c.ours - 100.0 * 139.7 / 197.5).abs() < 1e-9);
-    assert_eq!(get(reference::IBO_COST_LABEL, "stanford_dragon", "BIN").paper, 140.4);
+    assert_eq!(
+        get(reference::IBO_COST_LABEL, "stanford_dragon", "BIN").paper,
+        140.4
+    );
     // No table 20/38 cells for the ibo random / kensler chains.
     assert_eq!(
-        rep.comparisons.iter().filter(|c| c.metric == reference::IBO_COST_LABEL).count(),
+        rep.comparisons
+            .iter()
+            .filter(|c| c.metric == reference::IBO_COST_LABEL)
+            .count(),
         6,
         "FSW, BIN, INC on two scenes"
     );
     // Bittner 2013 table 2: dragon only (871k), cost before and ocost after compaction.
-    let b: Vec<_> = rep.bittner.iter().map(|b| (b.scene_name.as_str(), b.paper_method.as_str())).collect();
+    let b: Vec<_> = rep
+        .bittner
+        .iter()
+        .map(|b| (b.scene_name.as_str(), b.paper_method.as_str()))
+        .collect();
     assert_eq!(
         b,
         [
@@ -238,9 +427,16 @@ fn thesis_tables_and_bittner() {
     let sah = &rep.bittner[0];
     assert_eq!(&sah.ours[..3], &[145.4, 138.1, 0.0]);
     let comb = &rep.bittner[2];
-    assert!((comb.ours[0] - 144.0).abs() < 0.01 && comb.ours[1] == 137.0, "{comb:?}");
+    assert!(
+        (comb.ours[0] - 144.0).abs() < 0.01 && comb.ours[1] == 137.0,
+        "{comb:?}"
+    );
     assert_eq!(comb.paper, [145.4, 138.1, 1.21, 13.18]);
-    let c = get(reference::BITTNER_OCOST_LABEL, "stanford_dragon", "IBO combined");
+    let c = get(
+        reference::BITTNER_OCOST_LABEL,
+        "stanford_dragon",
+        "IBO combined",
+    );
     assert_eq!(c.source, reference::BITTNER);
 }
 
@@ -256,15 +452,32 @@ fn report_has_convergence_plots_and_tables() {
     assert!(html.contains("id=\"optimization\""));
     let sec = &html[html.find("id=\"optimization\"").unwrap()..html.find("id=\"flags\"").unwrap()];
     if !no_fonts {
-        for stem in ["convergence_stanford_dragon_sweep-sah_leaf_1", "convergence_conference_spatial-median_leaf_1"] {
+        for stem in [
+            "convergence_stanford_dragon_sweep-sah_leaf_1",
+            "convergence_conference_spatial-median_leaf_1",
+        ] {
             for ext in ["png", "svg"] {
                 let p = out.join("plots").join(format!("{stem}.{ext}"));
                 assert!(p.exists(), "{} missing", p.display());
             }
         }
-        assert_eq!(sec.matches("<figure>").count(), 8, "one figure per (scene, initial tree)");
-        let svg = std::fs::read_to_string(out.join("plots/convergence_stanford_dragon_sweep-sah_leaf_1.svg")).unwrap();
-        for label in ["ibo comb", "ibo random", "kensler-sa", "optimizer time", "pass", "90%"] {
+        assert_eq!(
+            sec.matches("<figure>").count(),
+            8,
+            "one figure per (scene, initial tree)"
+        );
+        let svg = std::fs::read_to_string(
+            out.join("plots/convergence_stanford_dragon_sweep-sah_leaf_1.svg"),
+        )
+        .unwrap();
+        for label in [
+            "ibo comb",
+            "ibo random",
+            "kensler-sa",
+            "optimizer time",
+            "pass",
+            "90%",
+        ] {
             assert!(svg.contains(label), "{label} in the convergence plot");
         }
         // The speed-vs-quality chart labels optimizer chains and counts their time.
@@ -273,14 +486,18 @@ fn report_has_convergence_plots_and_tables() {
         assert!(pareto.contains("build + optimize"));
     }
     // Convergence table: comb's 90% pass (4) and the (none) baseline row.
-    assert!(sec.contains("<td>ibo comb</td><td class=\"n\">12</td><td>converged</td>"), "{sec}");
+    assert!(
+        sec.contains("<td>ibo comb</td><td class=\"n\">12</td><td>converged</td>"),
+        "{sec}"
+    );
     assert!(sec.contains("(none)"));
     if reference_dir().is_some() {
         assert!(sec.contains("Thesis tables 38 and 20"));
         assert!(sec.contains("Bittner 2013 table 2"));
         assert!(sec.contains("Kensler annealing"));
         // BP2 dragon 5% off: flagged in the reference table.
-        let refsec = &html[html.find("id=\"reference\"").unwrap()..html.find("id=\"results\"").unwrap()];
+        let refsec =
+            &html[html.find("id=\"reference\"").unwrap()..html.find("id=\"results\"").unwrap()];
         assert!(refsec.contains("|diff| &gt; 3%"));
         assert!(refsec.contains("BP2"));
     }
@@ -289,7 +506,10 @@ fn report_has_convergence_plots_and_tables() {
 #[test]
 fn no_optimization_section_without_optimizers() {
     let dir = tempfile::tempdir().unwrap();
-    let rows: Vec<ResultRow> = rows().into_iter().filter(|r| r.optimizer.is_none()).collect();
+    let rows: Vec<ResultRow> = rows()
+        .into_iter()
+        .filter(|r| r.optimizer.is_none())
+        .collect();
     let index = write_report(&dir.path().join("r"), "plain", &rows, None).unwrap();
     let html = std::fs::read_to_string(index).unwrap();
     assert!(!html.contains("id=\"optimization\""));

@@ -16,6 +16,9 @@ pub struct ConvCurve {
     pub mark: Option<(u32, f64, f64)>,
 }
 
+/// Maps a trace point (pass, seconds, cost) to panel coordinates.
+type ToXy<'a> = &'a dyn Fn(&(u32, f64, f64)) -> (f64, f64);
+
 pub struct ConvergenceFigure {
     pub caption: String,
     pub curves: Vec<ConvCurve>,
@@ -36,14 +39,20 @@ impl ConvergenceFigure {
     pub fn y_range(&self) -> Option<(f64, f64, bool)> {
         let (lo, hi) = self
             .finite()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.2), b.max(p.2)));
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+                (a.min(p.2), b.max(p.2))
+            });
         if !lo.is_finite() {
             return None;
         }
         if lo > 0.0 && hi / lo > 3.0 {
             return Some((lo / 1.05, hi * 1.1, true));
         }
-        let span = if hi > lo { hi - lo } else { hi.abs().max(1e-3) * 0.05 };
+        let span = if hi > lo {
+            hi - lo
+        } else {
+            hi.abs().max(1e-3) * 0.05
+        };
         Some((lo - 0.05 * span, hi + 0.05 * span, false))
     }
 
@@ -83,10 +92,16 @@ impl Figure for ConvergenceFigure {
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
-        let root = root.titled(&self.caption, ("sans-serif", 22)).map_err(err)?;
+        let root = root
+            .titled(&self.caption, ("sans-serif", 22))
+            .map_err(err)?;
         let Some((ylo, yhi, ylog)) = self.y_range() else {
-            root.draw(&Text::new("no finite trace points", (20, 20), ("sans-serif", 18).into_font()))
-                .map_err(err)?;
+            root.draw(&Text::new(
+                "no finite trace points",
+                (20, 20),
+                ("sans-serif", 18).into_font(),
+            ))
+            .map_err(err)?;
             return Ok(());
         };
         let (_, h) = root.dim_in_pixel();
@@ -96,7 +111,11 @@ impl Figure for ConvergenceFigure {
         let (tlo, thi, tlog) = self.x_time();
         let max_pass = self.finite().map(|p| p.0).max().unwrap_or(1).max(1) as f64;
         let ydesc = if ylog { "SAH cost (log)" } else { "SAH cost" };
-        let time_desc = if tlog { "optimizer time [s] (log; pass 0 at the left edge)" } else { "optimizer time [s]" };
+        let time_desc = if tlog {
+            "optimizer time [s] (log; pass 0 at the left edge)"
+        } else {
+            "optimizer time [s]"
+        };
         // Time panel: pass 0 sits at t = 0, which a log axis cannot show: clamp it to the edge.
         let clamp_t = |t: f64| if tlog { t.max(tlo) } else { t };
         let time_xy = |p: &(u32, f64, f64)| (clamp_t(p.1), p.2);
@@ -115,27 +134,48 @@ impl Figure for ConvergenceFigure {
         } else {
             panel!(&halves[0], tlo..thi, time_desc, &time_xy);
         }
-        panel!(&halves[1], -0.02 * max_pass..max_pass * 1.03, "pass", &pass_xy);
+        panel!(
+            &halves[1],
+            -0.02 * max_pass..max_pass * 1.03,
+            "pass",
+            &pass_xy
+        );
 
         // Legend under both panels, two columns.
         let (w, _) = legend.dim_in_pixel();
         let col_w = (w as i32 - 120) / 2;
-        let mut entries: Vec<(String, RGBColor, bool)> =
-            self.curves.iter().map(|c| (c.label.clone(), color(c.color_index), false)).collect();
-        entries.push(("ring: 90% of the curve's final reduction".into(), RGBColor(0, 0, 0), true));
+        let mut entries: Vec<(String, RGBColor, bool)> = self
+            .curves
+            .iter()
+            .map(|c| (c.label.clone(), color(c.color_index), false))
+            .collect();
+        entries.push((
+            "ring: 90% of the curve's final reduction".into(),
+            RGBColor(0, 0, 0),
+            true,
+        ));
         for (i, (label, c, ring)) in entries.iter().enumerate() {
             let x = 100 + (i as i32 % 2) * col_w;
             let y = 4 + (i as i32 / 2) * LEGEND_ROW;
             let mid = y + 6;
             if *ring {
-                legend.draw(&Circle::new((x + 12, mid), 5, c.stroke_width(2))).map_err(err)?;
+                legend
+                    .draw(&Circle::new((x + 12, mid), 5, c.stroke_width(2)))
+                    .map_err(err)?;
             } else {
                 legend
-                    .draw(&PathElement::new(vec![(x, mid), (x + 24, mid)], c.stroke_width(3)))
+                    .draw(&PathElement::new(
+                        vec![(x, mid), (x + 24, mid)],
+                        c.stroke_width(3),
+                    ))
                     .map_err(err)?;
             }
             legend
-                .draw(&Text::new(label.clone(), (x + 30, y), ("sans-serif", 13).into_font()))
+                .draw(&Text::new(
+                    label.clone(),
+                    (x + 30, y),
+                    ("sans-serif", 13).into_font(),
+                ))
                 .map_err(err)?;
         }
         Ok(())
@@ -150,7 +190,7 @@ impl ConvergenceFigure {
         yr: Y,
         xdesc: &str,
         ydesc: &str,
-        xy: &dyn Fn(&(u32, f64, f64)) -> (f64, f64),
+        xy: ToXy,
     ) -> Result<(), String>
     where
         DB: DrawingBackend,
