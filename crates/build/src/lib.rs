@@ -8,6 +8,10 @@
 //!
 //! The bottom-up builders (lbvh, aac, ploc) take primitives already sorted by the encode stage's
 //! codes ([`SortedCodes`]) and emit a cluster tree that [`bottomup::to_bvh`] lays out.
+//!
+//! Bonsai ([`bonsai`], thesis 3.3) is a two-level builder: spatial-median primitive sets, a
+//! full-sweep SAH mini tree per set (in parallel), optional pruning, and a full-sweep SAH top tree
+//! over the mini-tree roots weighted by their primitive counts (`sweep_sah::build_weighted`).
 
 pub mod aac;
 pub mod binned_sah;
