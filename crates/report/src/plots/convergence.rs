@@ -34,26 +34,35 @@ impl ConvergenceFigure {
             .filter(|p| p.1.is_finite() && p.2.is_finite())
     }
 
-    /// y range over every finite cost; log when the costs span more than a factor 3 (a spatial
-    /// median start would flatten the interesting end of every curve).
-    pub fn y_range(&self) -> Option<(f64, f64, bool)> {
-        let (lo, hi) = self
-            .finite()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-                (a.min(p.2), b.max(p.2))
-            });
-        if !lo.is_finite() {
+    /// y range `(lo, hi, log, clipped)`: from the lowest cost to the highest start (or final)
+    /// cost, so an annealing run that climbs far above its start (a hot schedule) does not squash
+    /// every other curve; points above are drawn at the top edge (`clipped`). Log when the costs
+    /// span more than a factor 3 (a spatial-median start would flatten the interesting end).
+    pub fn y_range(&self) -> Option<(f64, f64, bool, bool)> {
+        let lo = self.finite().map(|p| p.2).fold(f64::INFINITY, f64::min);
+        let ends = self
+            .curves
+            .iter()
+            .flat_map(|c| [c.points.first(), c.points.last()])
+            .flatten()
+            .map(|p| p.2)
+            .filter(|y| y.is_finite());
+        let hi = ends.fold(f64::NEG_INFINITY, f64::max);
+        if !lo.is_finite() || !hi.is_finite() {
             return None;
         }
+        let top = self.finite().map(|p| p.2).fold(f64::NEG_INFINITY, f64::max);
         if lo > 0.0 && hi / lo > 3.0 {
-            return Some((lo / 1.05, hi * 1.1, true));
+            let yhi = hi * 1.1;
+            return Some((lo / 1.05, yhi, true, top > yhi));
         }
         let span = if hi > lo {
             hi - lo
         } else {
             hi.abs().max(1e-3) * 0.05
         };
-        Some((lo - 0.05 * span, hi + 0.05 * span, false))
+        let yhi = hi + 0.05 * span;
+        Some((lo - 0.05 * span, yhi, false, top > yhi))
     }
 
     /// Time axis: log when the runs' lengths differ by more than 20x (a time-capped annealing run
@@ -95,7 +104,7 @@ impl Figure for ConvergenceFigure {
         let root = root
             .titled(&self.caption, ("sans-serif", 22))
             .map_err(err)?;
-        let Some((ylo, yhi, ylog)) = self.y_range() else {
+        let Some((ylo, yhi, ylog, clipped)) = self.y_range() else {
             root.draw(&Text::new(
                 "no finite trace points",
                 (20, 20),
@@ -110,7 +119,13 @@ impl Figure for ConvergenceFigure {
         let halves = plots.split_evenly((1, 2));
         let (tlo, thi, tlog) = self.x_time();
         let max_pass = self.finite().map(|p| p.0).max().unwrap_or(1).max(1) as f64;
-        let ydesc = if ylog { "SAH cost (log)" } else { "SAH cost" };
+        let ydesc = match (ylog, clipped) {
+            (false, false) => "SAH cost",
+            (true, false) => "SAH cost (log)",
+            (false, true) => "SAH cost (higher values drawn at the top)",
+            (true, true) => "SAH cost (log; higher values drawn at the top)",
+        };
+        let clamp_y = |y: f64| y.min(yhi);
         let time_desc = if tlog {
             "optimizer time [s] (log; pass 0 at the left edge)"
         } else {
@@ -118,8 +133,8 @@ impl Figure for ConvergenceFigure {
         };
         // Time panel: pass 0 sits at t = 0, which a log axis cannot show: clamp it to the edge.
         let clamp_t = |t: f64| if tlog { t.max(tlo) } else { t };
-        let time_xy = |p: &(u32, f64, f64)| (clamp_t(p.1), p.2);
-        let pass_xy = |p: &(u32, f64, f64)| (p.0 as f64, p.2);
+        let time_xy = |p: &(u32, f64, f64)| (clamp_t(p.1), clamp_y(p.2));
+        let pass_xy = |p: &(u32, f64, f64)| (p.0 as f64, clamp_y(p.2));
         macro_rules! panel {
             ($area:expr, $xr:expr, $xdesc:expr, $xy:expr) => {
                 if ylog {
