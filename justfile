@@ -47,6 +47,10 @@ outliers:
 bench-morton RUNS="5":
     bash scripts/bench-builders.sh morton {{RUNS}}
 
+# The optimization-family speed targets (ibo vs sweep-SAH build, Bonsai vs sweep SAH) with PASS/MISS.
+bench-opt RUNS="5":
+    bash scripts/bench-opt.sh {{RUNS}}
+
 # What CI runs.
 ci:
     bash .ci/run
