@@ -43,20 +43,35 @@ fn check(ctx: &str, bvh: &Bvh, scene: &Scene, boxes: &[bvhlab_bvh::Aabb], rays: 
     }
 }
 
+fn raw(kv: &[(&str, &str)]) -> BTreeMap<String, String> {
+    kv.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
+}
+
+/// A scene with `n` random rays (seeded) and their brute-force closest hits.
+struct Case {
+    scene: Scene,
+    boxes: Vec<bvhlab_bvh::Aabb>,
+    centers: Vec<bvhlab_bvh::Vec3>,
+    rays: Vec<Ray>,
+    want: Vec<bvhlab_trace::Hit>,
+}
+
+fn case(spec: &str, n: usize, seed: u64) -> Case {
+    let scene = load_scene(spec).unwrap();
+    let (boxes, centers) = scene.boxes_and_centers();
+    let b = scene.bounds();
+    let radius = centers.iter().map(|c| (*c - b.center()).length()).fold(0.0, f32::max);
+    let rays = random_rays(&b, radius, n, seed);
+    let want = brute_force(&scene.triangles, &rays);
+    Case { scene, boxes, centers, rays, want }
+}
+
 #[test]
 fn every_registered_builder_matches_brute_force() {
     let reg = Registry::standard();
     let cost = CostParams::default();
-    let raw = |kv: &[(&str, &str)]| -> BTreeMap<String, String> {
-        kv.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
-    };
     for spec in SCENES {
-        let scene = load_scene(spec).unwrap();
-        let (boxes, centers) = scene.boxes_and_centers();
-        let b = scene.bounds();
-        let radius = centers.iter().map(|c| (*c - b.center()).length()).fold(0.0, f32::max);
-        let rays = random_rays(&b, radius, 3000, 7);
-        let want = brute_force(&scene.triangles, &rays);
+        let Case { scene, boxes, centers, rays, want } = case(spec, 3000, 7);
         for info in &reg.builders {
             if info.codes.is_none() {
                 // Builders without a leaf threshold (incremental: one primitive per leaf) run once.
@@ -94,16 +109,8 @@ fn every_registered_builder_matches_brute_force() {
 fn every_registered_optimizer_matches_brute_force() {
     let reg = Registry::standard();
     let cost = CostParams::default();
-    let raw = |kv: &[(&str, &str)]| -> BTreeMap<String, String> {
-        kv.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
-    };
     for spec in SCENES {
-        let scene = load_scene(spec).unwrap();
-        let (boxes, centers) = scene.boxes_and_centers();
-        let b = scene.bounds();
-        let radius = centers.iter().map(|c| (*c - b.center()).length()).fold(0.0, f32::max);
-        let rays = random_rays(&b, radius, 2000, 11);
-        let want = brute_force(&scene.triangles, &rays);
+        let Case { scene, boxes, centers, rays, want } = case(spec, 2000, 11);
         for (builder, leaf) in [("spatial-median", "1"), ("sweep-sah", "1"), ("binned-sah", "4")] {
             let r = reg.resolve(builder, &raw(&[("leaf", leaf)]), cost).unwrap();
             let built = reg.get(builder).unwrap().construct(&boxes, &centers, None, &r);
