@@ -46,15 +46,21 @@ pub struct Resolved {
     pub cost: CostParams,
 }
 
+/// A canonical parameter parsed as `T` (its default value when absent: the schema filled every
+/// parameter in, so that happens only for names the schema does not have).
+fn typed<T: std::str::FromStr + Default>(params: &BTreeMap<String, String>, name: &str) -> T {
+    params.get(name).and_then(|v| v.parse().ok()).unwrap_or_default()
+}
+
 impl Resolved {
     pub fn u32(&self, name: &str) -> u32 {
-        self.params.get(name).and_then(|v| v.parse().ok()).unwrap_or(0)
+        typed(&self.params, name)
     }
     pub fn f32(&self, name: &str) -> f32 {
-        self.params.get(name).and_then(|v| v.parse().ok()).unwrap_or(0.0)
+        typed(&self.params, name)
     }
     pub fn flag(&self, name: &str) -> bool {
-        self.params.get(name).map(String::as_str) == Some("true")
+        typed(&self.params, name)
     }
     pub fn config(&self) -> TopDownConfig {
         TopDownConfig { leaf: self.u32("leaf"), cost: self.cost }
@@ -361,13 +367,13 @@ pub struct ResolvedOptimizer {
 
 impl ResolvedOptimizer {
     pub fn u32(&self, name: &str) -> u32 {
-        self.params.get(name).and_then(|v| v.parse().ok()).unwrap_or(0)
+        typed(&self.params, name)
     }
     pub fn f64(&self, name: &str) -> f64 {
-        self.params.get(name).and_then(|v| v.parse().ok()).unwrap_or(0.0)
+        typed(&self.params, name)
     }
     pub fn flag(&self, name: &str) -> bool {
-        self.params.get(name).map(String::as_str) == Some("true")
+        typed(&self.params, name)
     }
     /// `max_seconds > 0`: the result may depend on machine speed.
     pub fn time_capped(&self) -> bool {
@@ -449,7 +455,7 @@ const SEED: ParamSpec = ParamSpec {
 
 /// ibo: p_R <= p_T (Bittner 2013 section 3.5).
 fn ibo_finish(_raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, String>) -> Result<(), String> {
-    let get = |k: &str| params.get(k).and_then(|v| v.parse::<u32>().ok()).unwrap_or(0);
+    let get = |k: &str| typed::<u32>(params, k);
     if get("pr") > get("pt") {
         return Err(format!("pr={} must not exceed pt={} (Bittner 2013 3.5: p_R <= p_T)", get("pr"), get("pt")));
     }
@@ -461,7 +467,7 @@ fn ibo_finish(_raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, Str
 }
 
 fn kensler_sa_finish(_raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, String>) -> Result<(), String> {
-    let c: f64 = params.get("cooling").and_then(|v| v.parse().ok()).unwrap_or(0.0);
+    let c: f64 = typed(params, "cooling");
     if !(c > 0.0 && c < 1.0) {
         return Err(format!("cooling={c} must be in (0, 1)"));
     }
