@@ -15,7 +15,8 @@ fn config() -> bincode::config::Configuration {
 }
 
 pub fn encode<T: Serialize>(value: &T) -> Result<Vec<u8>, String> {
-    let payload = bincode::serde::encode_to_vec(value, config()).map_err(|e| format!("encode: {e}"))?;
+    let payload =
+        bincode::serde::encode_to_vec(value, config()).map_err(|e| format!("encode: {e}"))?;
     let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
     out.extend_from_slice(&MAGIC);
     out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
@@ -29,19 +30,27 @@ pub fn encode<T: Serialize>(value: &T) -> Result<Vec<u8>, String> {
 /// Checks header, length and checksum; returns the payload slice.
 pub fn verify(bytes: &[u8]) -> Result<&[u8], String> {
     if bytes.len() < HEADER_LEN {
-        return Err(format!("truncated: {} bytes, header needs {HEADER_LEN}", bytes.len()));
+        return Err(format!(
+            "truncated: {} bytes, header needs {HEADER_LEN}",
+            bytes.len()
+        ));
     }
     if bytes[0..8] != MAGIC {
         return Err("bad magic (not a bvhlab artifact)".into());
     }
     let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
     if version != FORMAT_VERSION {
-        return Err(format!("format version {version}, expected {FORMAT_VERSION}"));
+        return Err(format!(
+            "format version {version}, expected {FORMAT_VERSION}"
+        ));
     }
     let len = u64::from_le_bytes(bytes[16..24].try_into().unwrap());
     let payload = &bytes[HEADER_LEN..];
     if payload.len() as u64 != len {
-        return Err(format!("payload is {} bytes, header says {len}", payload.len()));
+        return Err(format!(
+            "payload is {} bytes, header says {len}",
+            payload.len()
+        ));
     }
     if blake3::hash(payload).as_bytes() != &bytes[24..56] {
         return Err("blake3 checksum mismatch".into());
@@ -71,7 +80,11 @@ mod tests {
     }
 
     fn sample() -> T {
-        T { a: 7, b: vec![1.5, -0.0, f32::INFINITY], s: "hi".into() }
+        T {
+            a: 7,
+            b: vec![1.5, -0.0, f32::INFINITY],
+            s: "hi".into(),
+        }
     }
 
     #[test]

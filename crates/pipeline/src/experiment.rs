@@ -137,13 +137,16 @@ fn resolve_scene_path(spec: &str, exp_path: &Path) -> Option<PathBuf> {
         return p.exists().then_some(p);
     }
     let dir = exp_path.parent().unwrap_or(Path::new("."));
-    [dir.join(&p), dir.join("..").join(&p)].into_iter().find(|c| c.exists())
+    [dir.join(&p), dir.join("..").join(&p)]
+        .into_iter()
+        .find(|c| c.exists())
 }
 
 impl Experiment {
     pub fn load(path: &Path, registry: &Registry) -> Result<Experiment> {
-        let src = std::fs::read_to_string(path)
-            .map_err(|e| Error::input(format!("{}: cannot read experiment: {e}", path.display())))?;
+        let src = std::fs::read_to_string(path).map_err(|e| {
+            Error::input(format!("{}: cannot read experiment: {e}", path.display()))
+        })?;
         Self::parse(&src, path, registry)
     }
 
@@ -160,13 +163,22 @@ impl Experiment {
             }
         })?;
         if f.name.is_empty() || f.name.contains(['/', '\\']) || f.name.starts_with('.') {
-            return Err(Error::input(format!("{}: `name` must be a plain directory name", path.display())));
+            return Err(Error::input(format!(
+                "{}: `name` must be a plain directory name",
+                path.display()
+            )));
         }
         if f.scenes.is_empty() {
-            return Err(Error::input(format!("{}: `scenes` is empty", path.display())));
+            return Err(Error::input(format!(
+                "{}: `scenes` is empty",
+                path.display()
+            )));
         }
         if f.chain.is_empty() {
-            return Err(Error::input(format!("{}: no [[chain]] tables", path.display())));
+            return Err(Error::input(format!(
+                "{}: no [[chain]] tables",
+                path.display()
+            )));
         }
         let mut scenes = Vec::new();
         for s in &f.scenes {
@@ -178,22 +190,33 @@ impl Experiment {
                 },
                 SceneSource::File(_) => match resolve_scene_path(&spec, path) {
                     Some(p) => SceneSource::File(p),
-                    None => return Err(at(s.span().start, format!("scene file not found: {spec}"))),
+                    None => {
+                        return Err(at(s.span().start, format!("scene file not found: {spec}")))
+                    }
                 },
             };
             scenes.push((spec, source));
         }
         let d = CostParams::default();
         let cost = match &f.cost {
-            Some(c) => CostParams { c_t: c.c_t.unwrap_or(d.c_t), c_i: c.c_i.unwrap_or(d.c_i) },
+            Some(c) => CostParams {
+                c_t: c.c_t.unwrap_or(d.c_t),
+                c_i: c.c_i.unwrap_or(d.c_i),
+            },
             None => d,
         };
         if !(cost.c_t.is_finite() && cost.c_t > 0.0 && cost.c_i.is_finite() && cost.c_i > 0.0) {
-            return Err(Error::input(format!("{}: [cost] c_t and c_i must be finite and > 0", path.display())));
+            return Err(Error::input(format!(
+                "{}: [cost] c_t and c_i must be finite and > 0",
+                path.display()
+            )));
         }
         let repeat = f.repeat.unwrap_or(5);
         if repeat == 0 {
-            return Err(Error::input(format!("{}: `repeat` must be at least 1", path.display())));
+            return Err(Error::input(format!(
+                "{}: `repeat` must be at least 1",
+                path.display()
+            )));
         }
         let mut points = Vec::new();
         for (i, ch) in f.chain.iter().enumerate() {
@@ -230,13 +253,22 @@ impl Experiment {
                 registry
                     .resolve_chain(&build, encode.as_deref(), optimize.as_deref(), &c, cost)
                     .map_err(|e| err(e.message().to_string()))?;
-                points.push(ChainPoint { build, encode, optimize, compact, params: c });
+                points.push(ChainPoint {
+                    build,
+                    encode,
+                    optimize,
+                    compact,
+                    params: c,
+                });
             }
         }
         let mut rays = Vec::new();
         if let Some(r) = &f.rays {
             for s in &r.sets {
-                rays.push(RaySpec::parse(s.get_ref()).map_err(|e| at(s.span().start, e.message().to_string()))?);
+                rays.push(
+                    RaySpec::parse(s.get_ref())
+                        .map_err(|e| at(s.span().start, e.message().to_string()))?,
+                );
             }
         }
         for k in f.cameras.keys() {
@@ -251,11 +283,18 @@ impl Experiment {
             let v = f.get_ref();
             focus_box(v.min, v.max).map_err(|why| at(f.span().start, format!("{what}: {why}")))
         };
-        let focus = f.focus.as_ref().map(|x| focus_of(x, "[focus]")).transpose()?;
+        let focus = f
+            .focus
+            .as_ref()
+            .map(|x| focus_of(x, "[focus]"))
+            .transpose()?;
         let mut focuses = BTreeMap::new();
         for (k, v) in &f.focuses {
             if !scenes.iter().any(|(s, _)| s == k) {
-                return Err(at(v.span().start, format!("[focuses.\"{k}\"] names a scene not in `scenes`")));
+                return Err(at(
+                    v.span().start,
+                    format!("[focuses.\"{k}\"] names a scene not in `scenes`"),
+                ));
             }
             focuses.insert(k.clone(), focus_of(v, &format!("[focuses.\"{k}\"]"))?);
         }
@@ -268,7 +307,11 @@ impl Experiment {
             points,
             rays,
             camera: f.camera.as_ref().map(CameraToml::camera),
-            cameras: f.cameras.iter().map(|(k, v)| (k.clone(), v.camera())).collect(),
+            cameras: f
+                .cameras
+                .iter()
+                .map(|(k, v)| (k.clone(), v.camera()))
+                .collect(),
             focus,
             focuses,
         })
@@ -277,8 +320,11 @@ impl Experiment {
     /// Every chain of the experiment, scene-major (so a sweep can free a scene's data after it).
     pub fn chains(&self) -> Vec<ChainSpec> {
         let mut out = Vec::new();
-        let rays: Vec<Option<RaySpec>> =
-            if self.rays.is_empty() { vec![None] } else { self.rays.iter().copied().map(Some).collect() };
+        let rays: Vec<Option<RaySpec>> = if self.rays.is_empty() {
+            vec![None]
+        } else {
+            self.rays.iter().copied().map(Some).collect()
+        };
         for (spec, source) in &self.scenes {
             for p in &self.points {
                 for r in &rays {
@@ -339,21 +385,33 @@ fov = 30
     fn grid_expansion() {
         let e = parse(OK).unwrap();
         assert_eq!(e.points.len(), 3 * 2 + 2);
-        assert_eq!(e.points[0], ChainPoint {
-            build: "binned-sah".into(),
-            encode: None,
-            optimize: None,
-            compact: "none".into(),
-            params: [("bins".to_string(), "4".to_string())].into()
-        });
+        assert_eq!(
+            e.points[0],
+            ChainPoint {
+                build: "binned-sah".into(),
+                encode: None,
+                optimize: None,
+                compact: "none".into(),
+                params: [("bins".to_string(), "4".to_string())].into()
+            }
+        );
         assert_eq!(e.points[1].compact, "collapse");
         assert_eq!(e.points[7].build, "spatial-median");
-        assert_eq!(e.points[7].params.get("leaf").map(String::as_str), Some("1"));
+        assert_eq!(
+            e.points[7].params.get("leaf").map(String::as_str),
+            Some("1")
+        );
         assert_eq!(e.cost, CostParams { c_t: 1.0, c_i: 2.0 });
         let chains = e.chains();
         assert_eq!(chains.len(), 2 * 8 * 2);
         assert_eq!(chains[0].repeat, 3);
-        assert_eq!(chains[0].rays, Some(RaySpec::Primary { width: 32, height: 16 }));
+        assert_eq!(
+            chains[0].rays,
+            Some(RaySpec::Primary {
+                width: 32,
+                height: 16
+            })
+        );
         assert_eq!(chains[0].camera.unwrap().eye, Vec3::new(0.0, 0.0, 5.0));
         let city = chains.iter().find(|c| c.scene == "gen:city").unwrap();
         assert_eq!(city.camera.unwrap().fov_y_deg, 30.0);
@@ -362,7 +420,8 @@ fov = 30
 
     #[test]
     fn errors_name_file_and_line() {
-        let e = parse("name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\nbuild = \"nope\"\n").unwrap_err();
+        let e = parse("name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\nbuild = \"nope\"\n")
+            .unwrap_err();
         assert_eq!(e.exit_code(), 2);
         assert!(e.message().starts_with("exp.toml:3:"), "{e}");
         assert!(e.message().contains("binned-sah"), "{e}");
@@ -378,7 +437,10 @@ fov = 30
 
         let e = parse("name = \"x\"\nscenes = [\"gen:sphere\", \"missing/file.obj\"]\n[[chain]]\nbuild = \"sweep-sah\"\n")
             .unwrap_err();
-        assert!(e.message().starts_with("exp.toml:2:") && e.message().contains("missing/file.obj"), "{e}");
+        assert!(
+            e.message().starts_with("exp.toml:2:") && e.message().contains("missing/file.obj"),
+            "{e}"
+        );
 
         let e = parse("name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\nbuild = \"sweep-sah\"\n[rays]\nsets = [\"laser\"]\n")
             .unwrap_err();
@@ -413,22 +475,46 @@ max = [16.0, 4.0, 16.0]
         .unwrap();
         assert_eq!(e.points.len(), 2 * 2 + 2 + 1);
         let encs: Vec<Option<&str>> = e.points.iter().map(|p| p.encode.as_deref()).collect();
-        assert_eq!(encs[..4].iter().filter(|x| **x == Some("emc64-var")).count(), 2);
+        assert_eq!(
+            encs[..4]
+                .iter()
+                .filter(|x| **x == Some("emc64-var"))
+                .count(),
+            2
+        );
         assert_eq!(encs[4..], [None, None, None]);
-        assert_eq!(e.points[0].params.get("bounds").map(String::as_str), Some("concise"));
+        assert_eq!(
+            e.points[0].params.get("bounds").map(String::as_str),
+            Some("concise")
+        );
         assert!(!e.points[0].params.contains_key("encode"));
         let reg = Registry::standard();
         for p in &e.points[..4] {
-            let (b, enc) = reg.resolve_chain(&p.build, p.encode.as_deref(), None, &p.params, e.cost).unwrap().parts();
+            let (b, enc) = reg
+                .resolve_chain(&p.build, p.encode.as_deref(), None, &p.params, e.cost)
+                .unwrap()
+                .parts();
             assert!(b.params.contains_key("radius") && !b.params.contains_key("bounds"));
             assert_eq!(enc.unwrap().params["bounds"], "concise");
         }
-        let (_, enc) = reg.resolve_chain("aac", None, None, &e.points[4].params, e.cost).unwrap().parts();
+        let (_, enc) = reg
+            .resolve_chain("aac", None, None, &e.points[4].params, e.cost)
+            .unwrap()
+            .parts();
         assert_eq!(enc.unwrap().params["bits"], "8");
         let chains = e.chains();
-        let outlier = chains.iter().find(|c| c.scene == "gen:outlier:e=20").unwrap();
-        assert_eq!(outlier.focus, Some(Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0))));
-        let city = chains.iter().find(|c| c.scene == "gen:city" && c.build == "ploc").unwrap();
+        let outlier = chains
+            .iter()
+            .find(|c| c.scene == "gen:outlier:e=20")
+            .unwrap();
+        assert_eq!(
+            outlier.focus,
+            Some(Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0)))
+        );
+        let city = chains
+            .iter()
+            .find(|c| c.scene == "gen:city" && c.build == "ploc")
+            .unwrap();
         assert_eq!(city.focus.unwrap().max, Vec3::new(16.0, 4.0, 16.0));
         assert_eq!(city.encode.as_deref(), Some("morton"));
     }
@@ -437,26 +523,59 @@ max = [16.0, 4.0, 16.0]
     fn encoder_errors_name_the_chain() {
         let head = "name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\n";
         let cases: [(&str, &[&str]); 6] = [
-            ("build = \"ploc\"\nencode = \"emc64-var\"\nbits = 10\n", &["`bits`", "emc64-var", "bounds, grid_bits"]),
-            ("build = \"sweep-sah\"\nencode = \"morton\"\n", &["sweep-sah", "takes no codes"]),
-            ("build = \"lbvh\"\nencode = [\"morton\", \"zcurve\"]\n", &["zcurve", "emc64-sort"]),
-            ("build = \"binned-sah\"\nbounds = \"concise\"\n", &["bounds", "encoder parameter"]),
-            ("build = \"aac\"\npreset = \"fast\"\ndelta = 7\n", &["preset=fast sets delta=4"]),
-            ("build = \"lbvh\"\ngrid_bits = 5\n", &["grid_bits", "0, 6, 9, 12"]),
+            (
+                "build = \"ploc\"\nencode = \"emc64-var\"\nbits = 10\n",
+                &["`bits`", "emc64-var", "bounds, grid_bits"],
+            ),
+            (
+                "build = \"sweep-sah\"\nencode = \"morton\"\n",
+                &["sweep-sah", "takes no codes"],
+            ),
+            (
+                "build = \"lbvh\"\nencode = [\"morton\", \"zcurve\"]\n",
+                &["zcurve", "emc64-sort"],
+            ),
+            (
+                "build = \"binned-sah\"\nbounds = \"concise\"\n",
+                &["bounds", "encoder parameter"],
+            ),
+            (
+                "build = \"aac\"\npreset = \"fast\"\ndelta = 7\n",
+                &["preset=fast sets delta=4"],
+            ),
+            (
+                "build = \"lbvh\"\ngrid_bits = 5\n",
+                &["grid_bits", "0, 6, 9, 12"],
+            ),
         ];
         for (chain, needles) in cases {
             let e = parse(&format!("{head}{chain}")).unwrap_err();
             assert_eq!(e.exit_code(), 2, "{chain}");
-            assert!(e.message().starts_with("exp.toml:3:") && e.message().contains("chain #1"), "{e}");
+            assert!(
+                e.message().starts_with("exp.toml:3:") && e.message().contains("chain #1"),
+                "{e}"
+            );
             for n in needles {
                 assert!(e.message().contains(n), "`{n}` not in {e}");
             }
         }
-        let e = parse(&format!("{head}build = \"lbvh\"\n[focus]\nmin = [1, 1, 1]\nmax = [0, 0, 0]\n")).unwrap_err();
+        let e = parse(&format!(
+            "{head}build = \"lbvh\"\n[focus]\nmin = [1, 1, 1]\nmax = [0, 0, 0]\n"
+        ))
+        .unwrap_err();
         assert!(e.exit_code() == 2 && e.message().contains("[focus]"), "{e}");
-        let e = parse(&format!("{head}build = \"lbvh\"\n[focuses.\"gen:city\"]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n")).unwrap_err();
-        assert!(e.exit_code() == 2 && e.message().contains("not in `scenes`"), "{e}");
-        let e = parse(&format!("{head}build = \"lbvh\"\n[focus]\nmin = [0, 0, 0]\n")).unwrap_err();
+        let e = parse(&format!(
+            "{head}build = \"lbvh\"\n[focuses.\"gen:city\"]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n"
+        ))
+        .unwrap_err();
+        assert!(
+            e.exit_code() == 2 && e.message().contains("not in `scenes`"),
+            "{e}"
+        );
+        let e = parse(&format!(
+            "{head}build = \"lbvh\"\n[focus]\nmin = [0, 0, 0]\n"
+        ))
+        .unwrap_err();
         assert!(e.exit_code() == 2 && e.message().contains("max"), "{e}");
     }
 
@@ -465,8 +584,14 @@ max = [16.0, 4.0, 16.0]
     #[test]
     fn shipped_experiments_parse() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../experiments");
-        let Ok(entries) = std::fs::read_dir(&dir) else { return };
-        for f in entries.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "toml")) {
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            return;
+        };
+        for f in entries
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+        {
             match Experiment::load(&f, &Registry::standard()) {
                 Ok(e) => assert!(!e.chains().is_empty(), "{}", f.display()),
                 Err(e) if e.message().contains("scene file not found") => eprintln!("skipped: {e}"),

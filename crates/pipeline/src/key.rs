@@ -40,7 +40,12 @@ fn put_str(h: &mut blake3::Hasher, s: &str) {
     h.update(s.as_bytes());
 }
 
-pub fn stage_key(stage: &str, version: u32, params: &BTreeMap<String, String>, inputs: &[Key]) -> Key {
+pub fn stage_key(
+    stage: &str,
+    version: u32,
+    params: &BTreeMap<String, String>,
+    inputs: &[Key],
+) -> Key {
     let mut h = blake3::Hasher::new();
     h.update(b"bvhlab-stage-key-v1\0");
     put_str(&mut h, stage);
@@ -59,7 +64,11 @@ pub fn stage_key(stage: &str, version: u32, params: &BTreeMap<String, String>, i
 
 /// `k=v` joined by `,` in key order.
 pub fn params_string(params: &BTreeMap<String, String>) -> String {
-    params.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(",")
+    params
+        .iter()
+        .map(|(k, v)| format!("{k}={v}"))
+        .collect::<Vec<_>>()
+        .join(",")
 }
 
 #[cfg(test)]
@@ -67,20 +76,40 @@ mod tests {
     use super::*;
 
     fn p(kv: &[(&str, &str)]) -> BTreeMap<String, String> {
-        kv.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
+        kv.iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect()
     }
 
     #[test]
     fn key_depends_on_every_part() {
         let base = stage_key("build", 1, &p(&[("bins", "16")]), &[Key([1; 32])]);
-        assert_eq!(base, stage_key("build", 1, &p(&[("bins", "16")]), &[Key([1; 32])]));
-        assert_ne!(base, stage_key("compact", 1, &p(&[("bins", "16")]), &[Key([1; 32])]));
-        assert_ne!(base, stage_key("build", 2, &p(&[("bins", "16")]), &[Key([1; 32])]));
-        assert_ne!(base, stage_key("build", 1, &p(&[("bins", "8")]), &[Key([1; 32])]));
-        assert_ne!(base, stage_key("build", 1, &p(&[("bins", "16")]), &[Key([2; 32])]));
+        assert_eq!(
+            base,
+            stage_key("build", 1, &p(&[("bins", "16")]), &[Key([1; 32])])
+        );
+        assert_ne!(
+            base,
+            stage_key("compact", 1, &p(&[("bins", "16")]), &[Key([1; 32])])
+        );
+        assert_ne!(
+            base,
+            stage_key("build", 2, &p(&[("bins", "16")]), &[Key([1; 32])])
+        );
+        assert_ne!(
+            base,
+            stage_key("build", 1, &p(&[("bins", "8")]), &[Key([1; 32])])
+        );
+        assert_ne!(
+            base,
+            stage_key("build", 1, &p(&[("bins", "16")]), &[Key([2; 32])])
+        );
         assert_ne!(base, stage_key("build", 1, &p(&[("bins", "16")]), &[]));
         // Length prefixes keep concatenations apart.
-        assert_ne!(stage_key("ab", 1, &p(&[("c", "d")]), &[]), stage_key("a", 1, &p(&[("bc", "d")]), &[]));
+        assert_ne!(
+            stage_key("ab", 1, &p(&[("c", "d")]), &[]),
+            stage_key("a", 1, &p(&[("bc", "d")]), &[])
+        );
     }
 
     #[test]

@@ -49,7 +49,10 @@ pub struct Resolved {
 /// A canonical parameter parsed as `T` (its default value when absent: the schema filled every
 /// parameter in, so that happens only for names the schema does not have).
 fn typed<T: std::str::FromStr + Default>(params: &BTreeMap<String, String>, name: &str) -> T {
-    params.get(name).and_then(|v| v.parse().ok()).unwrap_or_default()
+    params
+        .get(name)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_default()
 }
 
 impl Resolved {
@@ -63,10 +66,16 @@ impl Resolved {
         typed(&self.params, name)
     }
     pub fn config(&self) -> TopDownConfig {
-        TopDownConfig { leaf: self.u32("leaf"), cost: self.cost }
+        TopDownConfig {
+            leaf: self.u32("leaf"),
+            cost: self.cost,
+        }
     }
     pub fn aac_config(&self) -> AacConfig {
-        AacConfig { delta: self.u32("delta"), epsilon: self.f32("epsilon") }
+        AacConfig {
+            delta: self.u32("delta"),
+            epsilon: self.f32("epsilon"),
+        }
     }
     /// Builder parameters plus `c_t`, `c_i`: what keys the build stage.
     pub fn key_params(&self) -> BTreeMap<String, String> {
@@ -124,8 +133,11 @@ impl Registry {
         if let Ok(info) = self.encoder(&e.encoder) {
             for spec in &info.params {
                 // Parameters dropped as meaningless (grid_frame without a grid) are not shown.
-                let Some(v) = e.params.get(spec.name).cloned() else { continue };
-                let is_default = v == spec.default || (spec.default == "auto" && v.starts_with("auto"));
+                let Some(v) = e.params.get(spec.name).cloned() else {
+                    continue;
+                };
+                let is_default =
+                    v == spec.default || (spec.default == "auto" && v.starts_with("auto"));
                 if spec.in_label || !is_default {
                     parts.push(format!("{}={v}", spec.name));
                 }
@@ -139,7 +151,8 @@ impl Registry {
 pub type BuildFn = fn(&[Aabb], &[Vec3], Option<&SortedCodes>, &Resolved) -> Bvh;
 /// Cross-parameter resolution after defaults are filled (e.g. AAC presets): gets the user-given
 /// parameters and the canonical ones, may rewrite the latter; `Err` is the reason.
-pub type FinishFn = fn(&BTreeMap<String, String>, &mut BTreeMap<String, String>) -> Result<(), String>;
+pub type FinishFn =
+    fn(&BTreeMap<String, String>, &mut BTreeMap<String, String>) -> Result<(), String>;
 /// Custom builder label (without cost constants).
 pub type LabelFn = fn(&Resolved) -> String;
 
@@ -162,8 +175,22 @@ pub struct BuilderInfo {
 
 impl BuilderInfo {
     /// A top-down builder over boxes and centres (no codes, no compaction, plain label).
-    pub fn top_down(name: &'static str, about: &'static str, params: Vec<ParamSpec>, run: BuildFn) -> BuilderInfo {
-        BuilderInfo { name, about, params, run, codes: None, collapse: false, finish: None, label: None }
+    pub fn top_down(
+        name: &'static str,
+        about: &'static str,
+        params: Vec<ParamSpec>,
+        run: BuildFn,
+    ) -> BuilderInfo {
+        BuilderInfo {
+            name,
+            about,
+            params,
+            run,
+            codes: None,
+            collapse: false,
+            finish: None,
+            label: None,
+        }
     }
 
     pub fn with_finish(mut self, f: FinishFn) -> BuilderInfo {
@@ -176,7 +203,13 @@ impl BuilderInfo {
     }
 
     /// What the build stage produces: the builder, then (bottom-up builders) the SAH compaction.
-    pub fn construct(&self, boxes: &[Aabb], centers: &[Vec3], codes: Option<&SortedCodes>, r: &Resolved) -> Bvh {
+    pub fn construct(
+        &self,
+        boxes: &[Aabb],
+        centers: &[Vec3],
+        codes: Option<&SortedCodes>,
+        r: &Resolved,
+    ) -> Bvh {
         let bvh = (self.run)(boxes, centers, codes, r);
         if self.collapse {
             bvhlab_bvh::collapse::collapse(&bvh, r.cost)
@@ -195,15 +228,31 @@ pub struct EncoderInfo {
 }
 
 pub const COST_PARAMS: [ParamSpec; 2] = [
-    ParamSpec { name: "c_t", default: "3", kind: Kind::PositiveFloat, about: "SAH traversal cost c_T (thesis 2.2.2)", in_label: false },
-    ParamSpec { name: "c_i", default: "2", kind: Kind::PositiveFloat, about: "SAH intersection cost c_I (thesis 2.2.2)", in_label: false },
+    ParamSpec {
+        name: "c_t",
+        default: "3",
+        kind: Kind::PositiveFloat,
+        about: "SAH traversal cost c_T (thesis 2.2.2)",
+        in_label: false,
+    },
+    ParamSpec {
+        name: "c_i",
+        default: "2",
+        kind: Kind::PositiveFloat,
+        about: "SAH intersection cost c_I (thesis 2.2.2)",
+        in_label: false,
+    },
 ];
 
 const LEAF: ParamSpec = ParamSpec {
     name: "leaf",
     default: "2",
-    kind: Kind::UInt { min: 1, max: 1 << 16 },
-    about: "primitive threshold: nodes with at most this many triangles become leaves (thesis 2.3.1)",
+    kind: Kind::UInt {
+        min: 1,
+        max: 1 << 16,
+    },
+    about:
+        "primitive threshold: nodes with at most this many triangles become leaves (thesis 2.3.1)",
     in_label: false,
 };
 
@@ -294,14 +343,20 @@ fn sorted<'a>(s: Option<&'a SortedCodes<'a>>) -> &'a SortedCodes<'a> {
 /// AAC: `preset=hq|fast` fills delta / epsilon (thesis table 2); explicit values must agree with it.
 /// The canonical parameters are delta and epsilon only, so `preset=hq` and `delta=20,epsilon=0.1`
 /// share a key.
-fn aac_finish(raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, String>) -> Result<(), String> {
+fn aac_finish(
+    raw: &BTreeMap<String, String>,
+    params: &mut BTreeMap<String, String>,
+) -> Result<(), String> {
     let preset = params.remove("preset").unwrap_or_else(|| "none".into());
     let cfg = match preset.as_str() {
         "hq" => AacConfig::HQ,
         "fast" => AacConfig::FAST,
         _ => return Ok(()),
     };
-    for (name, val) in [("delta", cfg.delta.to_string()), ("epsilon", fmt_f32(cfg.epsilon))] {
+    for (name, val) in [
+        ("delta", cfg.delta.to_string()),
+        ("epsilon", fmt_f32(cfg.epsilon)),
+    ] {
         if raw.contains_key(name) && params.get(name) != Some(&val) {
             return Err(format!(
                 "preset={preset} sets {name}={val}, but {name}={} was given; give either the preset or delta/epsilon",
@@ -315,7 +370,10 @@ fn aac_finish(raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, Stri
 
 /// Bonsai: `t` only matters with `prune=true`; without pruning it is dropped from the key, so
 /// BP0 has one spelling.
-fn bonsai_finish(_raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, String>) -> Result<(), String> {
+fn bonsai_finish(
+    _raw: &BTreeMap<String, String>,
+    params: &mut BTreeMap<String, String>,
+) -> Result<(), String> {
     if params.get("prune").map(String::as_str) != Some("true") {
         params.remove("t");
     }
@@ -325,7 +383,10 @@ fn bonsai_finish(_raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, 
 fn bonsai_label(r: &Resolved) -> String {
     let mut s = format!("bonsai n={}", r.u32("n"));
     if r.flag("prune") {
-        s.push_str(&format!(" prune t={}", r.params.get("t").cloned().unwrap_or_default()));
+        s.push_str(&format!(
+            " prune t={}",
+            r.params.get("t").cloned().unwrap_or_default()
+        ));
     }
     if r.params.get("leaf").map(String::as_str) != Some(LEAF.default) {
         s.push_str(&format!(" leaf={}", r.u32("leaf")));
@@ -381,7 +442,11 @@ impl ResolvedOptimizer {
     }
     pub fn ibo_config(&self) -> bvhlab_opt::ibo::IboConfig {
         bvhlab_opt::ibo::IboConfig {
-            measure: self.params.get("measure").and_then(|m| bvhlab_opt::ibo::Measure::parse(m)).unwrap_or(bvhlab_opt::ibo::Measure::Comb),
+            measure: self
+                .params
+                .get("measure")
+                .and_then(|m| bvhlab_opt::ibo::Measure::parse(m))
+                .unwrap_or(bvhlab_opt::ibo::Measure::Comb),
             frac: self.f64("ibo_frac") as f32,
             pt: self.u32("pt"),
             pr: self.u32("pr"),
@@ -424,7 +489,10 @@ impl ResolvedChain {
 const MAX_PASSES: ParamSpec = ParamSpec {
     name: "max_passes",
     default: "0",
-    kind: Kind::UInt { min: 0, max: u32::MAX },
+    kind: Kind::UInt {
+        min: 0,
+        max: u32::MAX,
+    },
     about: "stop after this many passes (0 = no limit)",
     in_label: false,
 };
@@ -433,7 +501,8 @@ const MAX_SECONDS: ParamSpec = ParamSpec {
     name: "max_seconds",
     default: "0",
     kind: Kind::NonNegativeFloat,
-    about: "stop after this many seconds (0 = no limit); a run stopped by it depends on machine speed",
+    about:
+        "stop after this many seconds (0 = no limit); a run stopped by it depends on machine speed",
     in_label: false,
 };
 
@@ -448,16 +517,26 @@ const KEEP_BEST: ParamSpec = ParamSpec {
 const SEED: ParamSpec = ParamSpec {
     name: "seed",
     default: "1",
-    kind: Kind::UInt { min: 0, max: u32::MAX },
+    kind: Kind::UInt {
+        min: 0,
+        max: u32::MAX,
+    },
     about: "seed of the random choices",
     in_label: false,
 };
 
 /// ibo: p_R <= p_T (Bittner 2013 section 3.5).
-fn ibo_finish(_raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, String>) -> Result<(), String> {
+fn ibo_finish(
+    _raw: &BTreeMap<String, String>,
+    params: &mut BTreeMap<String, String>,
+) -> Result<(), String> {
     let get = |k: &str| typed::<u32>(params, k);
     if get("pr") > get("pt") {
-        return Err(format!("pr={} must not exceed pt={} (Bittner 2013 3.5: p_R <= p_T)", get("pr"), get("pt")));
+        return Err(format!(
+            "pr={} must not exceed pt={} (Bittner 2013 3.5: p_R <= p_T)",
+            get("pr"),
+            get("pt")
+        ));
     }
     if params.get("measure").map(String::as_str) == Some("random") {
         // Random sampling has nothing to switch to.
@@ -466,7 +545,10 @@ fn ibo_finish(_raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, Str
     Ok(())
 }
 
-fn kensler_sa_finish(_raw: &BTreeMap<String, String>, params: &mut BTreeMap<String, String>) -> Result<(), String> {
+fn kensler_sa_finish(
+    _raw: &BTreeMap<String, String>,
+    params: &mut BTreeMap<String, String>,
+) -> Result<(), String> {
     let c: f64 = typed(params, "cooling");
     if !(c > 0.0 && c < 1.0) {
         return Err(format!("cooling={c} must be in (0, 1)"));
@@ -811,31 +893,68 @@ impl Registry {
     }
 
     fn code_builder_names(&self) -> String {
-        self.builders.iter().filter(|b| b.codes.is_some()).map(|b| b.name).collect::<Vec<_>>().join(", ")
+        self.builders
+            .iter()
+            .filter(|b| b.codes.is_some())
+            .map(|b| b.name)
+            .collect::<Vec<_>>()
+            .join(", ")
     }
 
     pub fn get(&self, name: &str) -> Result<&BuilderInfo> {
-        self.builders.iter().find(|b| b.name == name).ok_or_else(|| {
-            Error::input(format!("unknown builder `{name}`; valid builders: {}", self.names().join(", ")))
-        })
+        self.builders
+            .iter()
+            .find(|b| b.name == name)
+            .ok_or_else(|| {
+                Error::input(format!(
+                    "unknown builder `{name}`; valid builders: {}",
+                    self.names().join(", ")
+                ))
+            })
     }
 
     pub fn encoder(&self, name: &str) -> Result<&EncoderInfo> {
-        self.encoders.iter().find(|e| e.name == name).ok_or_else(|| {
-            Error::input(format!("unknown encoder `{name}`; valid encoders: {}", self.encoder_names().join(", ")))
-        })
+        self.encoders
+            .iter()
+            .find(|e| e.name == name)
+            .ok_or_else(|| {
+                Error::input(format!(
+                    "unknown encoder `{name}`; valid encoders: {}",
+                    self.encoder_names().join(", ")
+                ))
+            })
     }
 
     /// Validates `raw` (user-given `name -> value`) against the builder's schema plus the cost
     /// parameters; missing ones take their defaults (`cost` for c_t / c_i).
-    pub fn resolve(&self, builder: &str, raw: &BTreeMap<String, String>, cost: CostParams) -> Result<Resolved> {
+    pub fn resolve(
+        &self,
+        builder: &str,
+        raw: &BTreeMap<String, String>,
+        cost: CostParams,
+    ) -> Result<Resolved> {
         let info = self.get(builder)?;
         let valid = || {
-            info.params.iter().chain(COST_PARAMS.iter()).map(|p| p.name).collect::<Vec<_>>().join(", ")
+            info.params
+                .iter()
+                .chain(COST_PARAMS.iter())
+                .map(|p| p.name)
+                .collect::<Vec<_>>()
+                .join(", ")
         };
         for k in raw.keys() {
-            if !info.params.iter().chain(COST_PARAMS.iter()).any(|p| p.name == k) {
-                let hint = if info.codes.is_none() && self.encoders.iter().any(|e| e.params.iter().any(|p| p.name == k)) {
+            if !info
+                .params
+                .iter()
+                .chain(COST_PARAMS.iter())
+                .any(|p| p.name == k)
+            {
+                let hint = if info.codes.is_none()
+                    && self
+                        .encoders
+                        .iter()
+                        .any(|e| e.params.iter().any(|p| p.name == k))
+                {
                     format!(" (`{k}` is an encoder parameter; `{builder}` is top-down and takes no codes)")
                 } else {
                     String::new()
@@ -848,29 +967,52 @@ impl Registry {
         }
         let mut params = BTreeMap::new();
         for spec in &info.params {
-            let given = raw.get(spec.name).map(String::as_str).unwrap_or(spec.default);
+            let given = raw
+                .get(spec.name)
+                .map(String::as_str)
+                .unwrap_or(spec.default);
             let v = canonical(spec, given, None).map_err(|want| {
-                Error::input(format!("bad value `{given}` for `{}` of `{builder}`: expected {want}", spec.name))
+                Error::input(format!(
+                    "bad value `{given}` for `{}` of `{builder}`: expected {want}",
+                    spec.name
+                ))
             })?;
             params.insert(spec.name.to_string(), v);
         }
         if let Some(finish) = info.finish {
-            finish(raw, &mut params).map_err(|why| Error::input(format!("builder `{builder}`: {why}")))?;
+            finish(raw, &mut params)
+                .map_err(|why| Error::input(format!("builder `{builder}`: {why}")))?;
         }
         let mut cost_v = [cost.c_t, cost.c_i];
         for (i, spec) in COST_PARAMS.iter().enumerate() {
             if let Some(given) = raw.get(spec.name) {
-                let v = canonical(spec, given, None)
-                    .map_err(|want| Error::input(format!("bad value `{given}` for `{}`: expected {want}", spec.name)))?;
+                let v = canonical(spec, given, None).map_err(|want| {
+                    Error::input(format!(
+                        "bad value `{given}` for `{}`: expected {want}",
+                        spec.name
+                    ))
+                })?;
                 cost_v[i] = v.parse().unwrap_or(cost_v[i]);
             }
         }
-        Ok(Resolved { builder: builder.to_string(), params, cost: CostParams { c_t: cost_v[0], c_i: cost_v[1] } })
+        Ok(Resolved {
+            builder: builder.to_string(),
+            params,
+            cost: CostParams {
+                c_t: cost_v[0],
+                c_i: cost_v[1],
+            },
+        })
     }
 
     /// Validates an encoder and its parameters for a code-using builder (`auto` = that builder's
     /// code length).
-    pub fn resolve_encoder(&self, encoder: &str, raw: &BTreeMap<String, String>, auto: AutoFor) -> Result<ResolvedEncoder> {
+    pub fn resolve_encoder(
+        &self,
+        encoder: &str,
+        raw: &BTreeMap<String, String>,
+        auto: AutoFor,
+    ) -> Result<ResolvedEncoder> {
         let info = self.encoder(encoder)?;
         for k in raw.keys() {
             if !info.params.iter().any(|p| p.name == k) {
@@ -882,9 +1024,15 @@ impl Registry {
         }
         let mut params = BTreeMap::new();
         for spec in &info.params {
-            let given = raw.get(spec.name).map(String::as_str).unwrap_or(spec.default);
+            let given = raw
+                .get(spec.name)
+                .map(String::as_str)
+                .unwrap_or(spec.default);
             let v = canonical(spec, given, Some(auto)).map_err(|want| {
-                Error::input(format!("bad value `{given}` for `{}` of encoder `{encoder}`: expected {want}", spec.name))
+                Error::input(format!(
+                    "bad value `{given}` for `{}` of encoder `{encoder}`: expected {want}",
+                    spec.name
+                ))
             })?;
             params.insert(spec.name.to_string(), v);
         }
@@ -910,13 +1058,26 @@ impl Registry {
             Some("concise") => BoundsMode::Concise,
             _ => BoundsMode::Scene,
         };
-        let grid_bits = params.get("grid_bits").and_then(|g| g.parse().ok()).unwrap_or(0);
-        let config = EncodeConfig { scheme: info.scheme, bits, bounds, grid_bits };
+        let grid_bits = params
+            .get("grid_bits")
+            .and_then(|g| g.parse().ok())
+            .unwrap_or(0);
+        let config = EncodeConfig {
+            scheme: info.scheme,
+            bits,
+            bounds,
+            grid_bits,
+        };
         let cell_frame = match params.get("grid_frame").map(String::as_str) {
             Some("tight") => CellFrame::Tight,
             _ => CellFrame::Lattice,
         };
-        Ok(ResolvedEncoder { encoder: encoder.to_string(), params, config, cell_frame })
+        Ok(ResolvedEncoder {
+            encoder: encoder.to_string(),
+            params,
+            config,
+            cell_frame,
+        })
     }
 
     pub fn optimizer_names(&self) -> Vec<&'static str> {
@@ -924,13 +1085,24 @@ impl Registry {
     }
 
     pub fn optimizer(&self, name: &str) -> Result<&OptimizerInfo> {
-        self.optimizers.iter().find(|o| o.name == name).ok_or_else(|| {
-            Error::input(format!("unknown optimizer `{name}`; valid optimizers: {}", self.optimizer_names().join(", ")))
-        })
+        self.optimizers
+            .iter()
+            .find(|o| o.name == name)
+            .ok_or_else(|| {
+                Error::input(format!(
+                    "unknown optimizer `{name}`; valid optimizers: {}",
+                    self.optimizer_names().join(", ")
+                ))
+            })
     }
 
     /// Validates an optimizer's parameters (defaults filled in, canonical strings).
-    pub fn resolve_optimizer(&self, name: &str, raw: &BTreeMap<String, String>, cost: CostParams) -> Result<ResolvedOptimizer> {
+    pub fn resolve_optimizer(
+        &self,
+        name: &str,
+        raw: &BTreeMap<String, String>,
+        cost: CostParams,
+    ) -> Result<ResolvedOptimizer> {
         let info = self.optimizer(name)?;
         for k in raw.keys() {
             if !info.params.iter().any(|p| p.name == k) {
@@ -942,16 +1114,27 @@ impl Registry {
         }
         let mut params = BTreeMap::new();
         for spec in &info.params {
-            let given = raw.get(spec.name).map(String::as_str).unwrap_or(spec.default);
+            let given = raw
+                .get(spec.name)
+                .map(String::as_str)
+                .unwrap_or(spec.default);
             let v = canonical(spec, given, None).map_err(|want| {
-                Error::input(format!("bad value `{given}` for `{}` of optimizer `{name}`: expected {want}", spec.name))
+                Error::input(format!(
+                    "bad value `{given}` for `{}` of optimizer `{name}`: expected {want}",
+                    spec.name
+                ))
             })?;
             params.insert(spec.name.to_string(), v);
         }
         if let Some(finish) = info.finish {
-            finish(raw, &mut params).map_err(|why| Error::input(format!("optimizer `{name}`: {why}")))?;
+            finish(raw, &mut params)
+                .map_err(|why| Error::input(format!("optimizer `{name}`: {why}")))?;
         }
-        Ok(ResolvedOptimizer { optimizer: name.to_string(), params, cost })
+        Ok(ResolvedOptimizer {
+            optimizer: name.to_string(),
+            params,
+            cost,
+        })
     }
 
     /// Optimizer label: `ibo comb`, plus parameters changed from their defaults.
@@ -959,7 +1142,9 @@ impl Registry {
         let mut parts = vec![o.optimizer.clone()];
         if let Ok(info) = self.optimizer(&o.optimizer) {
             for spec in &info.params {
-                let Some(v) = o.params.get(spec.name) else { continue };
+                let Some(v) = o.params.get(spec.name) else {
+                    continue;
+                };
                 if spec.in_label {
                     parts.push(v.clone());
                 } else if v != spec.default && !(spec.name == "pr" && v == "0") {
@@ -996,7 +1181,12 @@ impl Registry {
         let oinfo = optimize.map(|o| self.optimizer(o)).transpose()?;
         let (mut braw, mut eraw, mut oraw) = (BTreeMap::new(), BTreeMap::new(), BTreeMap::new());
         for (k, v) in raw {
-            if info.params.iter().chain(COST_PARAMS.iter()).any(|p| p.name == k) {
+            if info
+                .params
+                .iter()
+                .chain(COST_PARAMS.iter())
+                .any(|p| p.name == k)
+            {
                 braw.insert(k.clone(), v.clone());
             } else if einfo.is_some_and(|e| e.params.iter().any(|p| p.name == k)) {
                 eraw.insert(k.clone(), v.clone());
@@ -1019,10 +1209,22 @@ impl Registry {
                 if let Some(o) = oinfo {
                     msg.push_str(&format!("; optimizer parameters: {}", names(&o.params)));
                 }
-                if einfo.is_none() && self.encoders.iter().any(|e| e.params.iter().any(|p| p.name == k)) {
+                if einfo.is_none()
+                    && self
+                        .encoders
+                        .iter()
+                        .any(|e| e.params.iter().any(|p| p.name == k))
+                {
                     msg.push_str(&format!(" (`{k}` is an encoder parameter; `{builder}` is top-down and takes no codes)"));
-                } else if oinfo.is_none() && self.optimizers.iter().any(|o| o.params.iter().any(|p| p.name == k)) {
-                    msg.push_str(&format!(" (`{k}` is an optimizer parameter; name the optimizer with `optimize`)"));
+                } else if oinfo.is_none()
+                    && self
+                        .optimizers
+                        .iter()
+                        .any(|o| o.params.iter().any(|p| p.name == k))
+                {
+                    msg.push_str(&format!(
+                        " (`{k}` is an optimizer parameter; name the optimizer with `optimize`)"
+                    ));
                 }
                 return Err(Error::input(msg));
             }
@@ -1032,8 +1234,14 @@ impl Registry {
             (Some(auto), Some(e)) => Some(self.resolve_encoder(e.name, &eraw, auto)?),
             _ => None,
         };
-        let optimizer = oinfo.map(|o| self.resolve_optimizer(o.name, &oraw, build.cost)).transpose()?;
-        Ok(ResolvedChain { build, encoder, optimizer })
+        let optimizer = oinfo
+            .map(|o| self.resolve_optimizer(o.name, &oraw, build.cost))
+            .transpose()?;
+        Ok(ResolvedChain {
+            build,
+            encoder,
+            optimizer,
+        })
     }
 }
 
@@ -1042,36 +1250,68 @@ mod tests {
     use super::*;
 
     fn raw(kv: &[(&str, &str)]) -> BTreeMap<String, String> {
-        kv.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
+        kv.iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect()
     }
 
     #[test]
     fn defaults_and_explicit_defaults_agree() {
         let r = Registry::standard();
-        let a = r.resolve("binned-sah", &raw(&[]), CostParams::default()).unwrap();
-        let b = r.resolve("binned-sah", &raw(&[("bins", "16"), ("c_t", "3.0"), ("leaf", "02")]), CostParams::default()).unwrap();
+        let a = r
+            .resolve("binned-sah", &raw(&[]), CostParams::default())
+            .unwrap();
+        let b = r
+            .resolve(
+                "binned-sah",
+                &raw(&[("bins", "16"), ("c_t", "3.0"), ("leaf", "02")]),
+                CostParams::default(),
+            )
+            .unwrap();
         assert_eq!(a, b);
         assert_eq!(a.key_params(), b.key_params());
-        assert_eq!(crate::key::params_string(&a.params), "bins=16,centroid_stop=split-axis,leaf=2");
+        assert_eq!(
+            crate::key::params_string(&a.params),
+            "bins=16,centroid_stop=split-axis,leaf=2"
+        );
     }
 
     #[test]
     fn errors_list_valid_choices() {
         let r = Registry::standard();
-        let e = r.resolve("nope", &raw(&[]), CostParams::default()).unwrap_err();
-        assert!(e.message().contains("binned-sah") && e.exit_code() == 2, "{e}");
-        let e = r.resolve("sweep-sah", &raw(&[("bins", "4")]), CostParams::default()).unwrap_err();
+        let e = r
+            .resolve("nope", &raw(&[]), CostParams::default())
+            .unwrap_err();
+        assert!(
+            e.message().contains("binned-sah") && e.exit_code() == 2,
+            "{e}"
+        );
+        let e = r
+            .resolve("sweep-sah", &raw(&[("bins", "4")]), CostParams::default())
+            .unwrap_err();
         assert!(e.message().contains("leaf, c_t, c_i"), "{e}");
-        let e = r.resolve("binned-sah", &raw(&[("bins", "x")]), CostParams::default()).unwrap_err();
+        let e = r
+            .resolve("binned-sah", &raw(&[("bins", "x")]), CostParams::default())
+            .unwrap_err();
         assert!(e.message().contains("bins"), "{e}");
-        assert!(r.resolve("binned-sah", &raw(&[("c_i", "-1")]), CostParams::default()).is_err());
-        assert!(r.resolve("binned-sah", &raw(&[("c_i", "inf")]), CostParams::default()).is_err());
+        assert!(r
+            .resolve("binned-sah", &raw(&[("c_i", "-1")]), CostParams::default())
+            .is_err());
+        assert!(r
+            .resolve("binned-sah", &raw(&[("c_i", "inf")]), CostParams::default())
+            .is_err());
     }
 
     #[test]
     fn cost_overrides() {
         let r = Registry::standard();
-        let a = r.resolve("spatial-median", &raw(&[("c_t", "1.5")]), CostParams { c_t: 9.0, c_i: 7.0 }).unwrap();
+        let a = r
+            .resolve(
+                "spatial-median",
+                &raw(&[("c_t", "1.5")]),
+                CostParams { c_t: 9.0, c_i: 7.0 },
+            )
+            .unwrap();
         assert_eq!(a.cost, CostParams { c_t: 1.5, c_i: 7.0 });
     }
 
@@ -1080,19 +1320,33 @@ mod tests {
         let r = Registry::standard();
         let c = CostParams::default();
         let hq = r.resolve("aac", &raw(&[("preset", "hq")]), c).unwrap();
-        let explicit = r.resolve("aac", &raw(&[("delta", "20"), ("epsilon", "0.10")]), c).unwrap();
+        let explicit = r
+            .resolve("aac", &raw(&[("delta", "20"), ("epsilon", "0.10")]), c)
+            .unwrap();
         let default = r.resolve("aac", &raw(&[]), c).unwrap();
         assert_eq!(hq, explicit);
         assert_eq!(hq, default);
-        assert_eq!(crate::key::params_string(&hq.params), "delta=20,epsilon=0.1");
+        assert_eq!(
+            crate::key::params_string(&hq.params),
+            "delta=20,epsilon=0.1"
+        );
         assert_eq!(r.label(&hq), "aac HQ");
-        let fast = r.resolve("aac", &raw(&[("preset", "fast"), ("delta", "4")]), c).unwrap();
+        let fast = r
+            .resolve("aac", &raw(&[("preset", "fast"), ("delta", "4")]), c)
+            .unwrap();
         assert_eq!(fast.aac_config(), AacConfig::FAST);
         assert_eq!(r.label(&fast), "aac fast");
-        let other = r.resolve("aac", &raw(&[("delta", "8"), ("epsilon", "0")]), c).unwrap();
+        let other = r
+            .resolve("aac", &raw(&[("delta", "8"), ("epsilon", "0")]), c)
+            .unwrap();
         assert_eq!(r.label(&other), "aac delta=8 epsilon=0");
-        let e = r.resolve("aac", &raw(&[("preset", "fast"), ("delta", "20")]), c).unwrap_err();
-        assert!(e.message().contains("preset=fast sets delta=4") && e.exit_code() == 2, "{e}");
+        let e = r
+            .resolve("aac", &raw(&[("preset", "fast"), ("delta", "20")]), c)
+            .unwrap_err();
+        assert!(
+            e.message().contains("preset=fast sets delta=4") && e.exit_code() == 2,
+            "{e}"
+        );
         assert!(r.resolve("aac", &raw(&[("delta", "0")]), c).is_err());
         assert!(r.resolve("aac", &raw(&[("epsilon", "-0.1")]), c).is_err());
         assert!(r.resolve("aac", &raw(&[("preset", "best")]), c).is_err());
@@ -1102,54 +1356,140 @@ mod tests {
     fn encoder_routing_and_auto_bits() {
         let r = Registry::standard();
         let c = CostParams::default();
-        let (b, e) = r.resolve_chain("ploc", None, None, &raw(&[("radius", "25"), ("bounds", "concise")]), c).unwrap().parts();
+        let (b, e) = r
+            .resolve_chain(
+                "ploc",
+                None,
+                None,
+                &raw(&[("radius", "25"), ("bounds", "concise")]),
+                c,
+            )
+            .unwrap()
+            .parts();
         let e = e.unwrap();
         assert_eq!(crate::key::params_string(&b.params), "radius=25");
         assert_eq!(e.encoder, "morton");
-        assert_eq!(crate::key::params_string(&e.params), "bits=auto:ploc,bounds=concise,grid_bits=0");
+        assert_eq!(
+            crate::key::params_string(&e.params),
+            "bits=auto:ploc,bounds=concise,grid_bits=0"
+        );
         assert_eq!(e.config.bits, Bits::Auto(AutoFor::Ploc));
         assert_eq!(e.config.bounds, BoundsMode::Concise);
         assert_eq!(r.encoder_label(&e), "morton bounds=concise");
-        let (_, e) = r.resolve_chain("aac", Some("morton"), None, &raw(&[("bits", "auto")]), c).unwrap().parts();
+        let (_, e) = r
+            .resolve_chain("aac", Some("morton"), None, &raw(&[("bits", "auto")]), c)
+            .unwrap()
+            .parts();
         assert_eq!(e.as_ref().unwrap().params["bits"], "auto:aac");
-        let (_, e) = r.resolve_chain("lbvh", Some("morton"), None, &raw(&[("bits", "10"), ("grid_bits", "9")]), c).unwrap().parts();
+        let (_, e) = r
+            .resolve_chain(
+                "lbvh",
+                Some("morton"),
+                None,
+                &raw(&[("bits", "10"), ("grid_bits", "9")]),
+                c,
+            )
+            .unwrap()
+            .parts();
         let e = e.unwrap();
         assert_eq!((e.config.bits, e.config.grid_bits), (Bits::Fixed(10), 9));
         assert_eq!(r.encoder_label(&e), "morton bits=10 grid_bits=9");
         assert_eq!(e.cell_frame, CellFrame::Lattice);
         let (_, t) = r
-            .resolve_chain("lbvh", Some("emc64-var"), None, &raw(&[("grid_bits", "9"), ("grid_frame", "tight")]), c)
+            .resolve_chain(
+                "lbvh",
+                Some("emc64-var"),
+                None,
+                &raw(&[("grid_bits", "9"), ("grid_frame", "tight")]),
+                c,
+            )
             .unwrap()
             .parts();
         let t = t.unwrap();
-        assert_eq!((t.cell_frame, r.encoder_label(&t).as_str()), (CellFrame::Tight, "emc64-var grid_bits=9 grid_frame=tight"));
-        assert_eq!(crate::key::params_string(&t.params), "bounds=scene,grid_bits=9,grid_frame=tight");
-        let err = r.resolve_chain("lbvh", Some("morton"), None, &raw(&[("grid_frame", "tight")]), c).unwrap_err();
-        assert!(err.message().contains("grid_bits") && err.exit_code() == 2, "{err}");
+        assert_eq!(
+            (t.cell_frame, r.encoder_label(&t).as_str()),
+            (CellFrame::Tight, "emc64-var grid_bits=9 grid_frame=tight")
+        );
+        assert_eq!(
+            crate::key::params_string(&t.params),
+            "bounds=scene,grid_bits=9,grid_frame=tight"
+        );
+        let err = r
+            .resolve_chain(
+                "lbvh",
+                Some("morton"),
+                None,
+                &raw(&[("grid_frame", "tight")]),
+                c,
+            )
+            .unwrap_err();
+        assert!(
+            err.message().contains("grid_bits") && err.exit_code() == 2,
+            "{err}"
+        );
         // EMC encoders have no bits; their key does not depend on the builder.
-        let (_, a) = r.resolve_chain("aac", Some("emc64-var"), None, &raw(&[]), c).unwrap().parts();
-        let (_, p) = r.resolve_chain("ploc", Some("emc64-var"), None, &raw(&[]), c).unwrap().parts();
+        let (_, a) = r
+            .resolve_chain("aac", Some("emc64-var"), None, &raw(&[]), c)
+            .unwrap()
+            .parts();
+        let (_, p) = r
+            .resolve_chain("ploc", Some("emc64-var"), None, &raw(&[]), c)
+            .unwrap()
+            .parts();
         assert_eq!(a.as_ref().unwrap().params, p.as_ref().unwrap().params);
         assert_eq!(a.unwrap().config, p.unwrap().config);
         // Top-down builders have no encoder.
-        assert_eq!(r.resolve_chain("binned-sah", None, None, &raw(&[]), c).unwrap().encoder, None);
+        assert_eq!(
+            r.resolve_chain("binned-sah", None, None, &raw(&[]), c)
+                .unwrap()
+                .encoder,
+            None
+        );
     }
 
     #[test]
     fn encoder_errors() {
         let r = Registry::standard();
         let c = CostParams::default();
-        let e = r.resolve_chain("ploc", Some("emc64-var"), None, &raw(&[("bits", "10")]), c).unwrap_err();
-        assert!(e.message().contains("`bits`") && e.message().contains("bounds, grid_bits"), "{e}");
-        let e = r.resolve_chain("sweep-sah", Some("morton"), None, &raw(&[]), c).unwrap_err();
-        assert!(e.message().contains("top-down") && e.message().contains("lbvh, aac, ploc"), "{e}");
-        let e = r.resolve_chain("sweep-sah", None, None, &raw(&[("bounds", "scene")]), c).unwrap_err();
+        let e = r
+            .resolve_chain("ploc", Some("emc64-var"), None, &raw(&[("bits", "10")]), c)
+            .unwrap_err();
+        assert!(
+            e.message().contains("`bits`") && e.message().contains("bounds, grid_bits"),
+            "{e}"
+        );
+        let e = r
+            .resolve_chain("sweep-sah", Some("morton"), None, &raw(&[]), c)
+            .unwrap_err();
+        assert!(
+            e.message().contains("top-down") && e.message().contains("lbvh, aac, ploc"),
+            "{e}"
+        );
+        let e = r
+            .resolve_chain("sweep-sah", None, None, &raw(&[("bounds", "scene")]), c)
+            .unwrap_err();
         assert!(e.message().contains("encoder parameter"), "{e}");
-        let e = r.resolve_chain("lbvh", Some("hilbert"), None, &raw(&[]), c).unwrap_err();
-        assert!(e.message().contains("emc64-sort") && e.exit_code() == 2, "{e}");
-        for (k, v) in [("bits", "0"), ("bits", "22"), ("bits", "auto:ploc"), ("bounds", "box"), ("grid_bits", "7")] {
-            let e = r.resolve_chain("aac", None, None, &raw(&[(k, v)]), c).unwrap_err();
-            assert!(e.message().contains(k) && e.exit_code() == 2, "{k}={v}: {e}");
+        let e = r
+            .resolve_chain("lbvh", Some("hilbert"), None, &raw(&[]), c)
+            .unwrap_err();
+        assert!(
+            e.message().contains("emc64-sort") && e.exit_code() == 2,
+            "{e}"
+        );
+        for (k, v) in [
+            ("bits", "0"),
+            ("bits", "22"),
+            ("bits", "auto:ploc"),
+            ("bounds", "box"),
+            ("grid_bits", "7"),
+        ] {
+            let e = r
+                .resolve_chain("aac", None, None, &raw(&[(k, v)]), c)
+                .unwrap_err();
+            assert!(
+                e.message().contains(k) && e.exit_code() == 2,
+                "{k}={v}: {e}"
+            );
         }
     }
 }

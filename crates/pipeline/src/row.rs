@@ -88,6 +88,44 @@ pub struct ResultRow {
     pub intersections_per_ray: Option<f64>,
     pub trace_seconds: Option<f64>,
     pub mrays_per_s: Option<f64>,
+    /// Layout stage (Kilian 2021): `bvh2`, `qbvh`, `octree`, `octree1`; absent without a layout
+    /// stage (the measure stage then traces the flat BVH, i.e. bvh2). With `layout=auto` this is the
+    /// layout the search picked and `layout_choice` says why.
+    pub layout: Option<String>,
+    /// Canonical layout parameters, `k=v` joined by `,` (e.g. `bits=8,chunk_bytes=64,frame=chunk`).
+    pub layout_params: Option<String>,
+    /// Bytes traversal reads at every step (Kilian 6.2 "size of topology": nodes, or chunks plus
+    /// node info), and with the leaf arrays (primitive and offset lists).
+    pub topology_bytes: Option<u64>,
+    pub total_bytes: Option<u64>,
+    pub topology_bytes_per_triangle: Option<f64>,
+    pub total_bytes_per_triangle: Option<f64>,
+    /// topology_bytes * 8 / layout_nodes.
+    pub topology_bits_per_node: Option<f64>,
+    /// Nodes of the layout's tree (octrees: octree nodes, not BVH nodes).
+    pub layout_nodes: Option<u64>,
+    /// Fixed-size chunks and their mean fill (used node slots / slots; Kilian fig. 4.16).
+    pub chunks: Option<u64>,
+    pub chunk_fill: Option<f64>,
+    /// Primitive references in the leaf arrays (octrees repeat primitives).
+    pub prim_refs: Option<u64>,
+    /// Peak heap growth while building the layout (bytes, counting allocator).
+    pub peak_build_bytes: Option<u64>,
+    /// Median seconds of the layout build.
+    pub layout_seconds: Option<f64>,
+    /// SAH cost (thesis eq. 4) evaluated with the boxes the layout's traversal tests (quantized
+    /// boxes for qbvh, implicit octant boxes for octrees).
+    pub layout_sah_cost: Option<f64>,
+    /// Per ray, extra nodes entered and extra triangle tests against the uncompressed structure of
+    /// the same topology (qbvh against bvh2 of the same BVH, octree1 against octree; 0 for those).
+    pub extra_box_hits_per_ray: Option<f64>,
+    pub extra_tests_per_ray: Option<f64>,
+    /// Median seconds of the same rays through bvh2 of the same BVH, timed in the same run
+    /// alternately with the layout's trace; `slowdown` = trace_seconds / bvh2_trace_seconds.
+    pub bvh2_trace_seconds: Option<f64>,
+    pub slowdown: Option<f64>,
+    /// `layout=auto`: the candidates measured and why this one was picked.
+    pub layout_choice: Option<String>,
     /// Path of the primary-ray heat map PNG in the cache, when the ray set is primary.
     pub heatmap: Option<String>,
     /// Stage keys (hex) of this chain, stage name -> key, for provenance.

@@ -48,10 +48,21 @@ struct NodeDef {
 }
 
 impl NodeDef {
-    fn new(stage: &'static str, version: u32, params: BTreeMap<String, String>, inputs: Vec<(&'static str, Key)>) -> Self {
+    fn new(
+        stage: &'static str,
+        version: u32,
+        params: BTreeMap<String, String>,
+        inputs: Vec<(&'static str, Key)>,
+    ) -> Self {
         let keys: Vec<Key> = inputs.iter().map(|(_, k)| *k).collect();
         let key = stage_key(stage, version, &params, &keys);
-        NodeDef { stage, version, params, inputs, key }
+        NodeDef {
+            stage,
+            version,
+            params,
+            inputs,
+            key,
+        }
     }
 }
 
@@ -164,7 +175,8 @@ impl Runner {
             }
             _ => {}
         }
-        self.counted.insert((stage, key), prev.unwrap_or(false) || computed);
+        self.counted
+            .insert((stage, key), prev.unwrap_or(false) || computed);
     }
 
     /// Validates a chain and computes every key without running anything.
@@ -188,8 +200,9 @@ impl Runner {
                     Some(h) => h.clone(),
                     None => {
                         // Keyed by content, not path: editing the file invalidates its artifacts.
-                        let bytes = std::fs::read(path)
-                            .map_err(|e| Error::input(format!("{}: cannot read scene: {e}", path.display())))?;
+                        let bytes = std::fs::read(path).map_err(|e| {
+                            Error::input(format!("{}: cannot read scene: {e}", path.display()))
+                        })?;
                         let h = blake3::hash(&bytes).to_hex().to_string();
                         self.file_hashes.insert(path.clone(), h.clone());
                         h
@@ -221,7 +234,12 @@ impl Runner {
             p.insert("c_t".into(), fmt_f32(o.cost.c_t));
             p.insert("c_i".into(), fmt_f32(o.cost.c_i));
             p.insert("repeat".into(), spec.repeat.to_string());
-            NodeDef::new("optimize", self.versions.optimize, p, vec![("build", build.key)])
+            NodeDef::new(
+                "optimize",
+                self.versions.optimize,
+                p,
+                vec![("build", build.key)],
+            )
         });
         let before_compact = optimize.as_ref().unwrap_or(&build);
         let compact = (spec.compact != "none").then(|| {
@@ -232,13 +250,24 @@ impl Runner {
                 param("repeat", spec.repeat),
             ]
             .into();
-            NodeDef::new("compact", self.versions.compact, p, vec![(before_compact.stage, before_compact.key)])
+            NodeDef::new(
+                "compact",
+                self.versions.compact,
+                p,
+                vec![(before_compact.stage, before_compact.key)],
+            )
         });
         let measure = spec.rays.map(|rays| {
             let final_node = compact.as_ref().unwrap_or(before_compact);
             let mut p: BTreeMap<String, String> = [
                 param("rays", rays.canonical()),
-                param("camera", spec.camera.as_ref().map(camera_canonical).unwrap_or_else(|| "auto".into())),
+                param(
+                    "camera",
+                    spec.camera
+                        .as_ref()
+                        .map(camera_canonical)
+                        .unwrap_or_else(|| "auto".into()),
+                ),
                 param("repeat", spec.repeat),
             ]
             .into();
@@ -246,7 +275,10 @@ impl Runner {
                 p.insert("seed".into(), RANDOM_SEED.to_string());
             }
             let inputs = vec![("load", load.key), (final_node.stage, final_node.key)];
-            (NodeDef::new("measure", self.versions.measure, p, inputs), rays)
+            (
+                NodeDef::new("measure", self.versions.measure, p, inputs),
+                rays,
+            )
         });
         let focus = spec.focus.map(|b| {
             let final_node = compact.as_ref().unwrap_or(before_compact);
@@ -277,13 +309,20 @@ impl Runner {
     fn commit(&self, node: &NodeDef, files: BTreeMap<String, String>, seconds: f64) -> Result<()> {
         let mut versions = BTreeMap::new();
         versions.insert("bvhlab".to_string(), env!("CARGO_PKG_VERSION").to_string());
-        versions.insert("artifact_format".to_string(), crate::codec::FORMAT_VERSION.to_string());
+        versions.insert(
+            "artifact_format".to_string(),
+            crate::codec::FORMAT_VERSION.to_string(),
+        );
         self.store.commit(&Manifest {
             key: node.key.hex(),
             stage: node.stage.to_string(),
             version: node.version,
             params: node.params.clone(),
-            inputs: node.inputs.iter().map(|(s, k)| format!("{s}:{}", k.hex())).collect(),
+            inputs: node
+                .inputs
+                .iter()
+                .map(|(s, k)| format!("{s}:{}", k.hex()))
+                .collect(),
             files,
             versions,
             machine: Machine::current(),
@@ -326,8 +365,14 @@ impl Runner {
             bounds: scene.bounds(),
         };
         let mut files = BTreeMap::new();
-        files.insert("bin".into(), self.store.put("load", &node.key, "bin", &scene)?);
-        files.insert("sum".into(), self.store.put("load", &node.key, "sum", &sum)?);
+        files.insert(
+            "bin".into(),
+            self.store.put("load", &node.key, "bin", &scene)?,
+        );
+        files.insert(
+            "sum".into(),
+            self.store.put("load", &node.key, "sum", &sum)?,
+        );
         self.commit(node, files, secs(t0))?;
         self.note("load", node.key, true);
         let s = Arc::new(scene);
@@ -368,8 +413,14 @@ impl Runner {
     // ---- encode -------------------------------------------------------------------------------
 
     fn encode_full(&mut self, plan: &Plan) -> Result<Arc<EncodeArtifact>> {
-        let node = plan.encode.clone().ok_or_else(|| Error::internal("chain has no encode stage"))?;
-        let enc = plan.encoder.clone().ok_or_else(|| Error::internal("chain has no encoder"))?;
+        let node = plan
+            .encode
+            .clone()
+            .ok_or_else(|| Error::internal("chain has no encode stage"))?;
+        let enc = plan
+            .encoder
+            .clone()
+            .ok_or_else(|| Error::internal("chain has no encoder"))?;
         if let Some(a) = self.encodings.get(&node.key) {
             return Ok(a.clone());
         }
@@ -421,8 +472,14 @@ impl Runner {
         };
         let art = EncodeArtifact { encoding, summary };
         let mut files = BTreeMap::new();
-        files.insert("bin".into(), self.store.put("encode", &node.key, "bin", &art)?);
-        files.insert("sum".into(), self.store.put("encode", &node.key, "sum", &art.summary)?);
+        files.insert(
+            "bin".into(),
+            self.store.put("encode", &node.key, "bin", &art)?,
+        );
+        files.insert(
+            "sum".into(),
+            self.store.put("encode", &node.key, "sum", &art.summary)?,
+        );
         self.commit(&node, files, secs(t0))?;
         self.note("encode", node.key, true);
         let art = Arc::new(art);
@@ -432,7 +489,9 @@ impl Runner {
     }
 
     fn encode_summary(&mut self, plan: &Plan) -> Result<Option<EncodeSummary>> {
-        let Some(node) = plan.encode.as_ref() else { return Ok(None) };
+        let Some(node) = plan.encode.as_ref() else {
+            return Ok(None);
+        };
         let key = node.key;
         if let Some(s) = self.encode_sums.get(&key) {
             return Ok(Some(s.clone()));
@@ -482,13 +541,21 @@ impl Runner {
         let input = match which {
             Which::Build => None,
             Which::Optimize => Some(self.bvh_full(plan, Which::Build)?),
-            Which::Compact => {
-                Some(self.bvh_full(plan, if plan.optimize.is_some() { Which::Optimize } else { Which::Build })?)
-            }
+            Which::Compact => Some(self.bvh_full(
+                plan,
+                if plan.optimize.is_some() {
+                    Which::Optimize
+                } else {
+                    Which::Build
+                },
+            )?),
         };
         let optimizer = match which {
             Which::Optimize => {
-                let o = plan.optimizer.clone().ok_or_else(|| Error::internal("chain has no optimizer"))?;
+                let o = plan
+                    .optimizer
+                    .clone()
+                    .ok_or_else(|| Error::internal("chain has no optimizer"))?;
                 Some((self.registry.optimizer(&o.optimizer)?.run, o))
             }
             _ => None,
@@ -505,7 +572,10 @@ impl Runner {
         });
         let info = self.registry.get(&plan.resolved.builder)?.clone();
         if which == Which::Build && info.codes.is_some() != codes.is_some() {
-            return Err(Error::internal(format!("builder `{}`: codes expected iff it uses codes", info.name)));
+            return Err(Error::internal(format!(
+                "builder `{}`: codes expected iff it uses codes",
+                info.name
+            )));
         }
         for run in 0..repeat {
             // Only the method itself is timed; boxes and centres are shared input preparation.
@@ -566,10 +636,19 @@ impl Runner {
         };
         let art = BvhArtifact { bvh, summary };
         let mut files = BTreeMap::new();
-        files.insert("bin".into(), self.store.put(node.stage, &node.key, "bin", &art)?);
-        files.insert("sum".into(), self.store.put(node.stage, &node.key, "sum", &art.summary)?);
+        files.insert(
+            "bin".into(),
+            self.store.put(node.stage, &node.key, "bin", &art)?,
+        );
+        files.insert(
+            "sum".into(),
+            self.store.put(node.stage, &node.key, "sum", &art.summary)?,
+        );
         if let Some(info) = opt_info {
-            files.insert("opt".into(), self.store.put(node.stage, &node.key, "opt", &info)?);
+            files.insert(
+                "opt".into(),
+                self.store.put(node.stage, &node.key, "opt", &info)?,
+            );
             self.opt_infos.insert(node.key, info);
         }
         self.commit(&node, files, secs(t0))?;
@@ -603,7 +682,9 @@ impl Runner {
     /// The optimize stage's trace and stop reason (read from `.opt`; recomputes the stage when that
     /// file is missing or corrupt).
     fn optimize_info(&mut self, plan: &Plan) -> Result<Option<OptimizeInfo>> {
-        let Some(node) = plan.optimize.clone() else { return Ok(None) };
+        let Some(node) = plan.optimize.clone() else {
+            return Ok(None);
+        };
         if let Some(i) = self.opt_infos.get(&node.key) {
             return Ok(Some(i.clone()));
         }
@@ -639,9 +720,14 @@ impl Runner {
         let bvh = &final_bvh.bvh;
         let tris = &scene.triangles;
         let bounds = scene.bounds();
-        let camera = plan.spec.camera.unwrap_or_else(|| Camera::from_bounds(&bounds));
+        let camera = plan
+            .spec
+            .camera
+            .unwrap_or_else(|| Camera::from_bounds(&bounds));
         let rays = match rays_spec {
-            RaySpec::Primary { width, height } => bvhlab_trace::primary_rays(&camera, width, height),
+            RaySpec::Primary { width, height } => {
+                bvhlab_trace::primary_rays(&camera, width, height)
+            }
             RaySpec::Shadow { width, height } => {
                 // Shadow rays start at the primary hits (thesis 4.4), so trace primary rays first.
                 let primary = bvhlab_trace::primary_rays(&camera, width, height);
@@ -651,7 +737,10 @@ impl Runner {
             }
             RaySpec::Random { count } => {
                 let c = bounds.center();
-                let r = tris.iter().map(|t| (t.bounds().center() - c).length()).fold(0.0f32, f32::max);
+                let r = tris
+                    .iter()
+                    .map(|t| (t.bounds().center() - c).length())
+                    .fold(0.0f32, f32::max);
                 bvhlab_trace::random_rays(&bounds, r, count as usize, RANDOM_SEED)
             }
         };
@@ -671,7 +760,8 @@ impl Runner {
                 Store::write_atomic_with(&path, |tmp| {
                     bvhlab_trace::heatmap::write_heatmap_png(tmp, &st.steps, width, height)
                 })?;
-                let bytes = std::fs::read(&path).map_err(|e| Error::internal(format!("{}: {e}", path.display())))?;
+                let bytes = std::fs::read(&path)
+                    .map_err(|e| Error::internal(format!("{}: {e}", path.display())))?;
                 files.insert("png".to_string(), blake3::hash(&bytes).to_hex().to_string());
                 Some(format!("measure/{}.png", node.key.hex()))
             }
@@ -687,7 +777,10 @@ impl Runner {
             seconds,
             heatmap,
         };
-        files.insert("sum".into(), self.store.put("measure", &node.key, "sum", &m)?);
+        files.insert(
+            "sum".into(),
+            self.store.put("measure", &node.key, "sum", &m)?,
+        );
         self.commit(&node, files, secs(t0))?;
         self.note("measure", node.key, true);
         Ok(m)
@@ -696,7 +789,9 @@ impl Runner {
     // ---- focus ----------------------------------------------------------------------------------
 
     fn focus(&mut self, plan: &Plan) -> Result<Option<FocusSummary>> {
-        let (Some(node), Some(focus_box)) = (plan.focus.clone(), plan.spec.focus) else { return Ok(None) };
+        let (Some(node), Some(focus_box)) = (plan.focus.clone(), plan.spec.focus) else {
+            return Ok(None);
+        };
         if let Some(f) = self.cached::<FocusSummary>(&node, "sum") {
             self.note("focus", node.key, false);
             return Ok(Some(f));
@@ -706,9 +801,12 @@ impl Runner {
         let final_bvh = self.bvh_full(plan, plan.final_which())?;
         let (boxes, centers) = scene.boxes_and_centers();
         // A triangle is in focus when its centroid (box centre, as the builders see it) is inside.
-        let in_focus: Vec<bool> =
-            centers.iter().map(|c| focus_box.min.cmple(*c).all() && c.cmple(focus_box.max).all()).collect();
-        let result = bvhlab_bvh::focus::focus_cost(&final_bvh.bvh, &in_focus, &boxes, plan.resolved.cost);
+        let in_focus: Vec<bool> = centers
+            .iter()
+            .map(|c| focus_box.min.cmple(*c).all() && c.cmple(focus_box.max).all())
+            .collect();
+        let result =
+            bvhlab_bvh::focus::focus_cost(&final_bvh.bvh, &in_focus, &boxes, plan.resolved.cost);
         let f = FocusSummary {
             triangles: in_focus.iter().filter(|&&x| x).count() as u64,
             sah_cost: result.map(|(_, c)| c),
@@ -772,8 +870,14 @@ impl Runner {
         if spec.compact != "none" {
             method.push_str(&format!(" +{}", spec.compact));
         }
-        let per_ray = |total: u64, rays: u64| if rays == 0 { 0.0 } else { total as f64 / rays as f64 };
-        Ok(ResultRow {
+        let per_ray = |total: u64, rays: u64| {
+            if rays == 0 {
+                0.0
+            } else {
+                total as f64 / rays as f64
+            }
+        };
+        let mut row = ResultRow {
             experiment: experiment.to_string(),
             scene: spec.scene.clone(),
             scene_name: scene_name(&spec.scene),
@@ -810,7 +914,9 @@ impl Runner {
             optimize_params: plan.optimizer.as_ref().map(|o| params_string(&o.params)),
             optimize_seconds: optimized.as_ref().map(|o| o.median_seconds),
             optimized_sah_cost: optimized.as_ref().map(|o| o.metrics.sah_cost),
-            optimize_passes: opt_info.as_ref().map(|i| i.trace.len().saturating_sub(1) as u32),
+            optimize_passes: opt_info
+                .as_ref()
+                .map(|i| i.trace.len().saturating_sub(1) as u32),
             optimize_stop: opt_info.as_ref().map(|i| i.stop.clone()),
             optimize_trace: opt_info.map(|i| i.trace),
             threads: rayon::current_num_threads() as u32,
@@ -821,20 +927,28 @@ impl Runner {
             rays: measure.as_ref().map(|x| x.rays),
             hits: measure.as_ref().map(|x| x.hits),
             traversal_steps_per_ray: measure.as_ref().map(|x| per_ray(x.total_steps, x.rays)),
-            intersections_per_ray: measure.as_ref().map(|x| per_ray(x.total_intersections, x.rays)),
-            trace_seconds: measure.as_ref().map(|x| x.median_seconds),
-            mrays_per_s: measure
+            intersections_per_ray: measure
                 .as_ref()
-                .map(|x| if x.median_seconds > 0.0 { x.rays as f64 / x.median_seconds / 1e6 } else { 0.0 }),
+                .map(|x| per_ray(x.total_intersections, x.rays)),
+            trace_seconds: measure.as_ref().map(|x| x.median_seconds),
+            mrays_per_s: measure.as_ref().map(|x| {
+                if x.median_seconds > 0.0 {
+                    x.rays as f64 / x.median_seconds / 1e6
+                } else {
+                    0.0
+                }
+            }),
             heatmap: measure
                 .as_ref()
                 .and_then(|x| x.heatmap.as_ref())
                 .map(|h| self.store.root().join(h).to_string_lossy().to_string()),
-            keys,
-        })
+            // Filled by the layout stage (issue 5).
+            ..Default::default()
+        };
+        row.keys = keys;
+        Ok(row)
     }
 }
-
 
 /// Runs `f` in a rayon pool of `threads` threads (None: rayon's default pool).
 pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {

@@ -62,7 +62,8 @@ pub struct Ops {
     pub validate: fn(&Bvh, &[Aabb]) -> Result<(), String>,
     pub collapse: fn(&Bvh, CostParams) -> Bvh,
     /// `bvhlab_morton::encode_cells`: the config plus the occupation grid's in-cell frame.
-    pub encode: fn(&[Aabb], &[bvhlab_geom::Vec3], &EncodeConfig, bvhlab_morton::CellFrame) -> Encoding,
+    pub encode:
+        fn(&[Aabb], &[bvhlab_geom::Vec3], &EncodeConfig, bvhlab_morton::CellFrame) -> Encoding,
 }
 
 impl Default for Ops {
@@ -107,9 +108,13 @@ pub fn scene_name(spec: &str) -> String {
     match spec.strip_prefix("gen:") {
         Some(rest) => rest.to_string(),
         None => {
-            let file = std::path::Path::new(spec).file_name().map(|s| s.to_string_lossy().to_string());
+            let file = std::path::Path::new(spec)
+                .file_name()
+                .map(|s| s.to_string_lossy().to_string());
             let f = file.unwrap_or_else(|| spec.to_string());
-            f.trim_end_matches(".gz").trim_end_matches(".obj").to_string()
+            f.trim_end_matches(".gz")
+                .trim_end_matches(".obj")
+                .to_string()
         }
     }
 }
@@ -117,10 +122,18 @@ pub fn scene_name(spec: &str) -> String {
 /// A ray set of the measure stage (thesis 4.4).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum RaySpec {
-    Primary { width: u32, height: u32 },
+    Primary {
+        width: u32,
+        height: u32,
+    },
     /// Shadow rays from the primary hits of a `width x height` image to a light above the camera.
-    Shadow { width: u32, height: u32 },
-    Random { count: u32 },
+    Shadow {
+        width: u32,
+        height: u32,
+    },
+    Random {
+        count: u32,
+    },
 }
 
 pub const DEFAULT_RESOLUTION: u32 = 256;
@@ -141,9 +154,18 @@ impl RaySpec {
             None => (s, None),
         };
         let res = |a: Option<&str>| -> Result<(u32, u32)> {
-            let Some(a) = a else { return Ok((DEFAULT_RESOLUTION, DEFAULT_RESOLUTION)) };
-            let (w, h) = a.split_once('x').ok_or_else(|| bad("resolution must be WIDTHxHEIGHT"))?;
-            let p = |v: &str| v.trim().parse::<u32>().ok().filter(|&n| (1..=16384).contains(&n));
+            let Some(a) = a else {
+                return Ok((DEFAULT_RESOLUTION, DEFAULT_RESOLUTION));
+            };
+            let (w, h) = a
+                .split_once('x')
+                .ok_or_else(|| bad("resolution must be WIDTHxHEIGHT"))?;
+            let p = |v: &str| {
+                v.trim()
+                    .parse::<u32>()
+                    .ok()
+                    .filter(|&n| (1..=16384).contains(&n))
+            };
             match (p(w), p(h)) {
                 (Some(w), Some(h)) => Ok((w, h)),
                 _ => Err(bad("width and height must be integers in 1..=16384")),
@@ -153,7 +175,9 @@ impl RaySpec {
             "primary" => res(arg).map(|(width, height)| RaySpec::Primary { width, height }),
             "shadow" => res(arg).map(|(width, height)| RaySpec::Shadow { width, height }),
             "random" => match arg {
-                None => Ok(RaySpec::Random { count: DEFAULT_RANDOM_RAYS }),
+                None => Ok(RaySpec::Random {
+                    count: DEFAULT_RANDOM_RAYS,
+                }),
                 Some(a) => match a.trim().parse::<u32>() {
                     Ok(n) if n >= 1 => Ok(RaySpec::Random { count: n }),
                     _ => Err(bad("count must be a positive integer")),
@@ -173,7 +197,13 @@ impl RaySpec {
 
 pub fn camera_canonical(c: &Camera) -> String {
     let v = |v: bvhlab_geom::Vec3| format!("{},{},{}", v.x, v.y, v.z);
-    format!("eye={};target={};up={};fov={}", v(c.eye), v(c.target), v(c.up), c.fov_y_deg)
+    format!(
+        "eye={};target={};up={};fov={}",
+        v(c.eye),
+        v(c.target),
+        v(c.up),
+        c.fov_y_deg
+    )
 }
 
 /// One chain: scene -> (encode) -> build -> optional compaction -> optional measurement / focus.
@@ -228,7 +258,10 @@ pub fn check_compact(name: &str) -> Result<()> {
     if COMPACT_METHODS.contains(&name) {
         Ok(())
     } else {
-        Err(Error::input(format!("unknown compaction `{name}`; valid: {}", COMPACT_METHODS.join(", "))))
+        Err(Error::input(format!(
+            "unknown compaction `{name}`; valid: {}",
+            COMPACT_METHODS.join(", ")
+        )))
     }
 }
 
@@ -302,16 +335,23 @@ pub struct FocusSummary {
 
 /// Parses `minx,miny,minz,maxx,maxy,maxz` (the CLI's `--focus`).
 pub fn parse_focus(s: &str) -> Result<Aabb> {
-    let v: Vec<f32> = s.split(',').map(|x| x.trim().parse::<f32>()).collect::<Result<_, _>>().map_err(|_| {
-        Error::input(format!("bad focus box `{s}`: expected six numbers minx,miny,minz,maxx,maxy,maxz"))
-    })?;
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| {
+            Error::input(format!(
+                "bad focus box `{s}`: expected six numbers minx,miny,minz,maxx,maxy,maxz"
+            ))
+        })?;
     if v.len() != 6 {
         return Err(Error::input(format!(
             "bad focus box `{s}`: expected six numbers minx,miny,minz,maxx,maxy,maxz, got {}",
             v.len()
         )));
     }
-    focus_box([v[0], v[1], v[2]], [v[3], v[4], v[5]]).map_err(|why| Error::input(format!("bad focus box `{s}`: {why}")))
+    focus_box([v[0], v[1], v[2]], [v[3], v[4], v[5]])
+        .map_err(|why| Error::input(format!("bad focus box `{s}`: {why}")))
 }
 
 /// A focus box from its corners: finite, `min <= max` on every axis (a flat box is allowed).
@@ -320,9 +360,14 @@ pub fn focus_box(min: [f32; 3], max: [f32; 3]) -> Result<Aabb, String> {
         return Err("corners must be finite".into());
     }
     if (0..3).any(|i| min[i] > max[i]) {
-        return Err(format!("min {min:?} must not exceed max {max:?} on any axis"));
+        return Err(format!(
+            "min {min:?} must not exceed max {max:?} on any axis"
+        ));
     }
-    Ok(Aabb::new(bvhlab_geom::Vec3::from(min), bvhlab_geom::Vec3::from(max)))
+    Ok(Aabb::new(
+        bvhlab_geom::Vec3::from(min),
+        bvhlab_geom::Vec3::from(max),
+    ))
 }
 
 /// Canonical text of a focus box for keys: `min=x,y,z;max=x,y,z` (shortest round-trip floats).
@@ -365,11 +410,32 @@ mod tests {
 
     #[test]
     fn ray_specs() {
-        assert_eq!(RaySpec::parse("primary:800x600").unwrap(), RaySpec::Primary { width: 800, height: 600 });
-        assert_eq!(RaySpec::parse("primary").unwrap().canonical(), "primary:256x256");
-        assert_eq!(RaySpec::parse("random:1000").unwrap(), RaySpec::Random { count: 1000 });
-        assert_eq!(RaySpec::parse("shadow:4x2").unwrap().canonical(), "shadow:4x2");
-        for bad in ["primary:0x5", "random:-3", "laser", "primary:12", "random:x"] {
+        assert_eq!(
+            RaySpec::parse("primary:800x600").unwrap(),
+            RaySpec::Primary {
+                width: 800,
+                height: 600
+            }
+        );
+        assert_eq!(
+            RaySpec::parse("primary").unwrap().canonical(),
+            "primary:256x256"
+        );
+        assert_eq!(
+            RaySpec::parse("random:1000").unwrap(),
+            RaySpec::Random { count: 1000 }
+        );
+        assert_eq!(
+            RaySpec::parse("shadow:4x2").unwrap().canonical(),
+            "shadow:4x2"
+        );
+        for bad in [
+            "primary:0x5",
+            "random:-3",
+            "laser",
+            "primary:12",
+            "random:x",
+        ] {
             let e = RaySpec::parse(bad).unwrap_err();
             assert_eq!(e.exit_code(), 2, "{bad}");
         }
@@ -384,7 +450,10 @@ mod tests {
 
     #[test]
     fn names() {
-        assert_eq!(scene_name("../shared/scenes/stanford_bunny.obj.gz"), "stanford_bunny");
+        assert_eq!(
+            scene_name("../shared/scenes/stanford_bunny.obj.gz"),
+            "stanford_bunny"
+        );
         assert_eq!(scene_name("gen:sphere:n=10"), "sphere:n=10");
     }
 }

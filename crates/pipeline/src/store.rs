@@ -57,14 +57,19 @@ impl Machine {
             hostname,
             os: std::env::consts::OS.into(),
             arch: std::env::consts::ARCH.into(),
-            cpus: std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+            cpus: std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1),
             threads: rayon::current_num_threads(),
         }
     }
 }
 
 pub fn now_unix() -> u64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0)
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0)
 }
 
 /// `--cache DIR` > `BVHLAB_CACHE` > `./cache`.
@@ -116,7 +121,10 @@ impl Store {
     pub fn open(root: impl Into<PathBuf>) -> Result<Store> {
         let root = root.into();
         fs::create_dir_all(&root).map_err(|e| io_err("cannot create cache dir", &root, e))?;
-        Ok(Store { root, temporary: false })
+        Ok(Store {
+            root,
+            temporary: false,
+        })
     }
 
     /// A throw-away store in the system temp dir, deleted when dropped.
@@ -125,7 +133,8 @@ impl Store {
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_nanos())
             .unwrap_or(0);
-        let root = std::env::temp_dir().join(format!("bvhlab-nocache-{}-{nanos}", std::process::id()));
+        let root =
+            std::env::temp_dir().join(format!("bvhlab-nocache-{}-{nanos}", std::process::id()));
         let mut s = Store::open(root)?;
         s.temporary = true;
         Ok(s)
@@ -146,7 +155,10 @@ impl Store {
         match codec::decode(&bytes) {
             Ok(v) => Some(v),
             Err(reason) => {
-                eprintln!("warning: corrupt cache artifact {}: {reason}; recomputing", path.display());
+                eprintln!(
+                    "warning: corrupt cache artifact {}: {reason}; recomputing",
+                    path.display()
+                );
                 self.quarantine(&path);
                 None
             }
@@ -161,9 +173,19 @@ impl Store {
     pub fn quarantine(&self, path: &Path) {
         let q = self.root.join("quarantine");
         let _ = fs::create_dir_all(&q);
-        let stage = path.parent().and_then(|p| p.file_name()).map(|s| s.to_string_lossy().to_string());
-        let name = path.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
-        let target = q.join(format!("{}.{name}.{}", stage.unwrap_or_default(), now_unix()));
+        let stage = path
+            .parent()
+            .and_then(|p| p.file_name())
+            .map(|s| s.to_string_lossy().to_string());
+        let name = path
+            .file_name()
+            .map(|s| s.to_string_lossy().to_string())
+            .unwrap_or_default();
+        let target = q.join(format!(
+            "{}.{name}.{}",
+            stage.unwrap_or_default(),
+            now_unix()
+        ));
         if fs::rename(path, &target).is_err() {
             let _ = fs::remove_file(path);
         }
@@ -175,16 +197,28 @@ impl Store {
     }
 
     /// Lets `write` produce the file at a temporary path, then fsyncs and renames it into place.
-    pub fn write_atomic_with(path: &Path, write: impl FnOnce(&Path) -> Result<(), String>) -> Result<()> {
-        let dir = path.parent().ok_or_else(|| Error::internal(format!("no parent dir: {}", path.display())))?;
+    pub fn write_atomic_with(
+        path: &Path,
+        write: impl FnOnce(&Path) -> Result<(), String>,
+    ) -> Result<()> {
+        let dir = path
+            .parent()
+            .ok_or_else(|| Error::internal(format!("no parent dir: {}", path.display())))?;
         fs::create_dir_all(dir).map_err(|e| io_err("cannot create", dir, e))?;
         let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-        let name = path.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+        let name = path
+            .file_name()
+            .map(|s| s.to_string_lossy().to_string())
+            .unwrap_or_default();
         // Keep the real extension last: some writers (PNG) pick the format from it.
         let tmp = dir.join(format!(".tmp-{}-{n}-{name}", std::process::id()));
         let result = (|| {
-            write(&tmp).map_err(|e| Error::internal(format!("cannot write {}: {e}", tmp.display())))?;
-            let f = fs::OpenOptions::new().write(true).open(&tmp).map_err(|e| io_err("cannot open", &tmp, e))?;
+            write(&tmp)
+                .map_err(|e| Error::internal(format!("cannot write {}: {e}", tmp.display())))?;
+            let f = fs::OpenOptions::new()
+                .write(true)
+                .open(&tmp)
+                .map_err(|e| io_err("cannot open", &tmp, e))?;
             f.sync_all().map_err(|e| io_err("cannot fsync", &tmp, e))?;
             drop(f);
             fs::rename(&tmp, path).map_err(|e| io_err("cannot rename into", path, e))
@@ -198,7 +232,13 @@ impl Store {
     }
 
     /// Encodes and writes one data file; returns the blake3 hex of the written bytes.
-    pub fn put<T: Serialize>(&self, stage: &str, key: &Key, ext: &str, value: &T) -> Result<String> {
+    pub fn put<T: Serialize>(
+        &self,
+        stage: &str,
+        key: &Key,
+        ext: &str,
+        value: &T,
+    ) -> Result<String> {
         let bytes = codec::encode(value).map_err(Error::internal)?;
         Self::write_atomic(&self.path(stage, key, ext), &bytes)?;
         Ok(blake3::hash(&bytes).to_hex().to_string())
@@ -206,8 +246,10 @@ impl Store {
 
     /// Writes the manifest, which completes the entry. Call after every data file is in place.
     pub fn commit(&self, manifest: &Manifest) -> Result<()> {
-        let key = Key::from_hex(&manifest.key).ok_or_else(|| Error::internal("bad manifest key"))?;
-        let json = serde_json::to_vec_pretty(manifest).map_err(|e| Error::internal(e.to_string()))?;
+        let key =
+            Key::from_hex(&manifest.key).ok_or_else(|| Error::internal("bad manifest key"))?;
+        let json =
+            serde_json::to_vec_pretty(manifest).map_err(|e| Error::internal(e.to_string()))?;
         Self::write_atomic(&self.path(&manifest.stage, &key, "json"), &json)
     }
 
@@ -229,7 +271,12 @@ impl Store {
     }
 
     fn files(dir: &Path) -> Vec<PathBuf> {
-        let mut v: Vec<PathBuf> = fs::read_dir(dir).into_iter().flatten().flatten().map(|e| e.path()).collect();
+        let mut v: Vec<PathBuf> = fs::read_dir(dir)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .map(|e| e.path())
+            .collect();
         v.sort();
         v
     }
@@ -240,7 +287,10 @@ impl Store {
         for dir in self.stage_dirs() {
             for f in Self::files(&dir) {
                 if f.extension().is_some_and(|e| e == "json") {
-                    if let Some(m) = fs::read(&f).ok().and_then(|b| serde_json::from_slice::<Manifest>(&b).ok()) {
+                    if let Some(m) = fs::read(&f)
+                        .ok()
+                        .and_then(|b| serde_json::from_slice::<Manifest>(&b).ok())
+                    {
                         out.push(m);
                     }
                 }
@@ -303,7 +353,10 @@ impl Store {
         let _ = fs::remove_dir(self.root.join("quarantine"));
         for dir in self.stage_dirs() {
             for f in Self::files(&dir) {
-                let name = f.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+                let name = f
+                    .file_name()
+                    .map(|s| s.to_string_lossy().to_string())
+                    .unwrap_or_default();
                 if name.starts_with(".tmp-") {
                     remove(&f);
                     continue;
@@ -348,7 +401,8 @@ mod tests {
         let k = key(1);
         assert_eq!(s.get::<Vec<u32>>("build", &k, "bin"), None);
         let h = s.put("build", &k, "bin", &vec![1u32, 2, 3]).unwrap();
-        s.commit(&manifest("build", &k, [("bin".to_string(), h)].into())).unwrap();
+        s.commit(&manifest("build", &k, [("bin".to_string(), h)].into()))
+            .unwrap();
         assert_eq!(s.get::<Vec<u32>>("build", &k, "bin"), Some(vec![1, 2, 3]));
         assert_eq!(s.entries().len(), 1);
         let v = s.verify();
@@ -369,7 +423,8 @@ mod tests {
         let s = Store::open(dir.path()).unwrap();
         let k = key(3);
         let h = s.put("load", &k, "bin", &vec![9u64; 100]).unwrap();
-        s.commit(&manifest("load", &k, [("bin".to_string(), h)].into())).unwrap();
+        s.commit(&manifest("load", &k, [("bin".to_string(), h)].into()))
+            .unwrap();
         let p = s.path("load", &k, "bin");
         let mut b = fs::read(&p).unwrap();
         let last = b.len() - 1;
@@ -379,7 +434,10 @@ mod tests {
         assert_eq!(v.bad.len(), 1);
         assert!(!p.exists(), "verify quarantines the bad file");
         assert_eq!(s.get::<Vec<u64>>("load", &k, "bin"), None);
-        assert_eq!(fs::read_dir(dir.path().join("quarantine")).unwrap().count(), 1);
+        assert_eq!(
+            fs::read_dir(dir.path().join("quarantine")).unwrap().count(),
+            1
+        );
     }
 
     #[test]

@@ -18,8 +18,11 @@ pub fn sweep(exp: &Experiment, runner: &mut Runner, progress: bool) -> Result<Sw
     let before = runner.counts.clone();
     let chains = exp.chains();
     let bar = if progress {
-        let b = ProgressBar::with_draw_target(Some(chains.len() as u64), ProgressDrawTarget::stderr());
-        if let Ok(style) = ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} {msg}") {
+        let b =
+            ProgressBar::with_draw_target(Some(chains.len() as u64), ProgressDrawTarget::stderr());
+        if let Ok(style) =
+            ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} {msg}")
+        {
             b.set_style(style.progress_chars("=> "));
         }
         b
@@ -37,8 +40,13 @@ pub fn sweep(exp: &Experiment, runner: &mut Runner, progress: bool) -> Result<Sw
             "{} {}{}{}",
             crate::stages::scene_name(&c.scene),
             c.build,
-            c.encode.as_ref().map(|e| format!(" {e}")).unwrap_or_default(),
-            c.rays.map(|r| format!(" {}", r.canonical())).unwrap_or_default()
+            c.encode
+                .as_ref()
+                .map(|e| format!(" {e}"))
+                .unwrap_or_default(),
+            c.rays
+                .map(|r| format!(" {}", r.canonical()))
+                .unwrap_or_default()
         ));
         let row = runner.run_chain(c, &exp.name);
         let row = match row {
@@ -61,5 +69,9 @@ pub fn sweep(exp: &Experiment, runner: &mut Runner, progress: bool) -> Result<Sw
         v.computed -= b.computed;
         v.cached -= b.cached;
     }
-    Ok(SweepResult { rows, counts, seconds: t0.elapsed().as_secs_f64() })
+    Ok(SweepResult {
+        rows,
+        counts,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
 }

@@ -1,11 +1,13 @@
 //! Cache behaviour of the runner, independent of the real loaders/builders: scenes, the builder,
 //! metrics, validation and compaction are injected test doubles, so these tests exercise only
 //! keys, counting, the store and corruption handling (encode and focus stages included).
+use bvhlab_build::SortedCodes;
 use bvhlab_bvh::{Aabb, Bvh, CostParams, Metrics, Node, Vec3};
 use bvhlab_geom::{LoadError, Scene, Triangle};
-use bvhlab_build::SortedCodes;
 use bvhlab_morton::{AutoFor, Bits, EncodeConfig, Encoding, Scheme};
-use bvhlab_pipeline::registry::{BuilderInfo, Kind, OptimizerInfo, ParamSpec, Resolved, ResolvedOptimizer};
+use bvhlab_pipeline::registry::{
+    BuilderInfo, Kind, OptimizerInfo, ParamSpec, Resolved, ResolvedOptimizer,
+};
 use bvhlab_pipeline::stages::Ops;
 use bvhlab_pipeline::{ChainSpec, Counts, Key, Registry, ResultRow, Runner, Store, Versions};
 use std::path::Path;
@@ -15,10 +17,18 @@ fn test_load(spec: &str) -> Result<Scene, LoadError> {
     let n: usize = spec
         .strip_prefix("gen:grid:n=")
         .and_then(|s| s.parse().ok())
-        .ok_or_else(|| LoadError { file: spec.into(), line: None, reason: "test loader".into() })?;
+        .ok_or_else(|| LoadError {
+            file: spec.into(),
+            line: None,
+            reason: "test loader".into(),
+        })?;
     Ok(Scene::from_triangles((0..n).map(|i| {
         let x = i as f32;
-        Triangle::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 0.5, 1.0, 0.0), Vec3::new(x, 0.0, 1.0))
+        Triangle::new(
+            Vec3::new(x, 0.0, 0.0),
+            Vec3::new(x + 0.5, 1.0, 0.0),
+            Vec3::new(x, 0.0, 1.0),
+        )
     })))
 }
 
@@ -26,7 +36,16 @@ fn test_build(boxes: &[Aabb], centers: &[Vec3], r: &Resolved) -> Bvh {
     let leaf = r.u32("leaf").max(1) as usize;
     let mut idx: Vec<u32> = (0..boxes.len() as u32).collect();
     let mut nodes = vec![Node::leaf(Aabb::EMPTY, 0, 1)];
-    fn rec(n: usize, lo: usize, hi: usize, leaf: usize, b: &[Aabb], c: &[Vec3], idx: &mut [u32], nodes: &mut Vec<Node>) {
+    fn rec(
+        n: usize,
+        lo: usize,
+        hi: usize,
+        leaf: usize,
+        b: &[Aabb],
+        c: &[Vec3],
+        idx: &mut [u32],
+        nodes: &mut Vec<Node>,
+    ) {
         let mut bb = Aabb::EMPTY;
         for &i in &idx[lo..hi] {
             bb.grow(&b[i as usize]);
@@ -36,7 +55,11 @@ fn test_build(boxes: &[Aabb], centers: &[Vec3], r: &Resolved) -> Bvh {
             return;
         }
         let axis = bb.largest_axis();
-        idx[lo..hi].sort_by(|&a, &b2| c[a as usize][axis].total_cmp(&c[b2 as usize][axis]).then(a.cmp(&b2)));
+        idx[lo..hi].sort_by(|&a, &b2| {
+            c[a as usize][axis]
+                .total_cmp(&c[b2 as usize][axis])
+                .then(a.cmp(&b2))
+        });
         let mid = (lo + hi) / 2;
         let left = nodes.len();
         nodes.push(Node::leaf(Aabb::EMPTY, 0, 1));
@@ -47,22 +70,39 @@ fn test_build(boxes: &[Aabb], centers: &[Vec3], r: &Resolved) -> Bvh {
     }
     let n = boxes.len();
     rec(0, 0, n, leaf, boxes, centers, &mut idx, &mut nodes);
-    Bvh { nodes, prim_indices: idx }
+    Bvh {
+        nodes,
+        prim_indices: idx,
+    }
 }
 
 /// Codes = quantized centroid x (bits per the config; EMC: 21), sorted, ties by index.
-fn test_encode(boxes: &[Aabb], centers: &[Vec3], cfg: &EncodeConfig, _frame: bvhlab_morton::CellFrame) -> Encoding {
+fn test_encode(
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    cfg: &EncodeConfig,
+    _frame: bvhlab_morton::CellFrame,
+) -> Encoding {
     let bits = match (cfg.scheme, cfg.bits) {
         (Scheme::Morton, Bits::Fixed(b)) => b,
         (Scheme::Morton, Bits::Auto(AutoFor::Ploc)) => 20,
         (Scheme::Morton, Bits::Auto(_)) => 10,
         _ => 21,
     };
-    let codes: Vec<u64> = centers.iter().map(|c| (c.x.max(0.0) as u64).min((1u64 << bits) - 1)).collect();
+    let codes: Vec<u64> = centers
+        .iter()
+        .map(|c| (c.x.max(0.0) as u64).min((1u64 << bits) - 1))
+        .collect();
     let mut order: Vec<u32> = (0..boxes.len() as u32).collect();
     order.sort_by_key(|&i| (codes[i as usize], i));
     let sorted: Vec<u64> = order.iter().map(|&i| codes[i as usize]).collect();
-    Encoding { order, codes: sorted, code_bits: bits, frame: Aabb::EMPTY, layout: "x".repeat(bits as usize), }
+    Encoding {
+        order,
+        codes: sorted,
+        code_bits: bits,
+        frame: Aabb::EMPTY,
+        layout: "x".repeat(bits as usize),
+    }
 }
 
 /// A code-using test builder: one leaf holding every primitive in code order.
@@ -72,7 +112,10 @@ fn test_code_build(boxes: &[Aabb], _: &[Vec3], s: Option<&SortedCodes>, _: &Reso
     for x in boxes {
         b.grow(x);
     }
-    Bvh { nodes: vec![Node::leaf(b, 0, s.order.len() as u32)], prim_indices: s.order.to_vec() }
+    Bvh {
+        nodes: vec![Node::leaf(b, 0, s.order.len() as u32)],
+        prim_indices: s.order.to_vec(),
+    }
 }
 
 fn test_metrics(b: &Bvh, cost: CostParams) -> Metrics {
@@ -113,8 +156,20 @@ fn test_runner(root: &Path, versions: Versions) -> Runner {
                 "test-median",
                 "test double",
                 vec![
-                    ParamSpec { name: "bins", default: "16", kind: Kind::UInt { min: 2, max: 64 }, about: "", in_label: true },
-                    ParamSpec { name: "leaf", default: "2", kind: Kind::UInt { min: 1, max: 8 }, about: "", in_label: false },
+                    ParamSpec {
+                        name: "bins",
+                        default: "16",
+                        kind: Kind::UInt { min: 2, max: 64 },
+                        about: "",
+                        in_label: true,
+                    },
+                    ParamSpec {
+                        name: "leaf",
+                        default: "2",
+                        kind: Kind::UInt { min: 1, max: 8 },
+                        about: "",
+                        in_label: false,
+                    },
                 ],
                 |b, c, _, r| test_build(b, c, r),
             ),
@@ -178,7 +233,10 @@ fn chains(bins: &[&str]) -> Vec<ChainSpec> {
 
 fn run_all(root: &Path, versions: Versions, chains: &[ChainSpec]) -> (Vec<ResultRow>, Counts) {
     let mut r = test_runner(root, versions);
-    let rows = chains.iter().map(|c| r.run_chain(c, "t").unwrap()).collect();
+    let rows = chains
+        .iter()
+        .map(|c| r.run_chain(c, "t").unwrap())
+        .collect();
     (rows, r.counts.clone())
 }
 
@@ -213,7 +271,10 @@ fn cold_then_warm() {
     assert_eq!(stage(&cold, "compact"), (4, 0));
     let (warm_rows, warm) = run_all(dir.path(), Versions::default(), &ch);
     assert_eq!((warm.computed, warm.cached), (0, 10));
-    assert_eq!(warm_rows, cold_rows, "cached rows are identical, timings included");
+    assert_eq!(
+        warm_rows, cold_rows,
+        "cached rows are identical, timings included"
+    );
     assert_eq!(cold_rows[0].triangles, 50);
     assert_eq!(cold_rows[0].method, "test-median bins=4");
     assert_eq!(cold_rows[1].method, "test-median bins=4 +collapse");
@@ -221,7 +282,11 @@ fn cold_then_warm() {
     // Nothing temporary is left behind.
     for d in std::fs::read_dir(dir.path()).unwrap().flatten() {
         for f in std::fs::read_dir(d.path()).unwrap().flatten() {
-            assert!(!f.file_name().to_string_lossy().starts_with(".tmp"), "{:?}", f.path());
+            assert!(
+                !f.file_name().to_string_lossy().starts_with(".tmp"),
+                "{:?}",
+                f.path()
+            );
         }
     }
 }
@@ -264,13 +329,28 @@ fn version_bump_invalidates_stage_and_downstream_only() {
     let dir = tempfile::tempdir().unwrap();
     let ch = chains(&["4", "8"]);
     run_all(dir.path(), Versions::default(), &ch);
-    let v = Versions { compact: Versions::default().compact + 1, ..Versions::default() };
+    let v = Versions {
+        compact: Versions::default().compact + 1,
+        ..Versions::default()
+    };
     let (_, c) = run_all(dir.path(), v, &ch);
-    assert_eq!((stage(&c, "load"), stage(&c, "build"), stage(&c, "compact")), ((0, 2), (0, 4), (4, 0)));
-    let v = Versions { build: Versions::default().build + 1, ..Versions::default() };
+    assert_eq!(
+        (stage(&c, "load"), stage(&c, "build"), stage(&c, "compact")),
+        ((0, 2), (0, 4), (4, 0))
+    );
+    let v = Versions {
+        build: Versions::default().build + 1,
+        ..Versions::default()
+    };
     let (_, c) = run_all(dir.path(), v, &ch);
-    assert_eq!((stage(&c, "load"), stage(&c, "build"), stage(&c, "compact")), ((0, 2), (4, 0), (4, 0)));
-    let v = Versions { load: Versions::default().load + 1, ..Versions::default() };
+    assert_eq!(
+        (stage(&c, "load"), stage(&c, "build"), stage(&c, "compact")),
+        ((0, 2), (4, 0), (4, 0))
+    );
+    let v = Versions {
+        load: Versions::default().load + 1,
+        ..Versions::default()
+    };
     let (_, c) = run_all(dir.path(), v, &ch);
     assert_eq!((c.computed, c.cached), (10, 0));
 }
@@ -296,7 +376,11 @@ fn corrupt_artifacts_are_recomputed_not_used() {
     flip_last_byte(&store.path("build", &build_key, "bin"));
     let (rows2, c) = run_all(dir.path(), Versions::default(), &ch);
     assert_eq!(stage(&c, "build"), (1, 1));
-    assert_eq!(stage(&c, "load"), (0, 2), "the recomputed build read the intact scene from the cache");
+    assert_eq!(
+        stage(&c, "load"),
+        (0, 2),
+        "the recomputed build read the intact scene from the cache"
+    );
     assert_eq!(untimed(&rows2), untimed(&rows));
     assert!(dir.path().join("quarantine").read_dir().unwrap().count() >= 2);
     // The recomputed entry is whole again.
@@ -312,7 +396,10 @@ fn corrupt_artifacts_are_recomputed_not_used() {
 
     // A corrupt scene is recomputed when a build needs it, and verify would have caught it.
     flip_last_byte(&store.path("load", &load_key, "bin"));
-    let v = Versions { build: Versions::default().build + 1, ..Versions::default() };
+    let v = Versions {
+        build: Versions::default().build + 1,
+        ..Versions::default()
+    };
     let (rows4, c) = run_all(dir.path(), v, &ch);
     assert_eq!(stage(&c, "load"), (1, 1));
     assert_eq!(rows4[0].bvh_hash, rows[0].bvh_hash);
@@ -374,17 +461,28 @@ fn bad_input_is_an_input_error_and_leaves_cache_intact() {
     run_all(dir.path(), Versions::default(), &ch);
     let before = Store::open(dir.path()).unwrap().entries().len();
     let mut r = test_runner(dir.path(), Versions::default());
-    let e = r.run_chain(&ChainSpec::new("gen:bogus", "test-median"), "t").unwrap_err();
+    let e = r
+        .run_chain(&ChainSpec::new("gen:bogus", "test-median"), "t")
+        .unwrap_err();
     assert_eq!(e.exit_code(), 2);
-    let e = r.run_chain(&ChainSpec::new("gen:grid:n=5", "nope"), "t").unwrap_err();
+    let e = r
+        .run_chain(&ChainSpec::new("gen:grid:n=5", "nope"), "t")
+        .unwrap_err();
     assert!(e.message().contains("test-median"), "{e}");
     let mut c = ChainSpec::new("gen:grid:n=5", "test-median");
     c.params.insert("bins".into(), "1000".into());
     assert_eq!(r.run_chain(&c, "t").unwrap_err().exit_code(), 2);
-    let e = r.run_chain(&ChainSpec::new("gen:grid:n=0", "test-median"), "t").unwrap_err();
+    let e = r
+        .run_chain(&ChainSpec::new("gen:grid:n=0", "test-median"), "t")
+        .unwrap_err();
     assert_eq!(e.exit_code(), 2);
-    let e = r.run_chain(&ChainSpec::new("/no/such/file.obj", "test-median"), "t").unwrap_err();
-    assert!(e.message().contains("/no/such/file.obj") && e.exit_code() == 2, "{e}");
+    let e = r
+        .run_chain(&ChainSpec::new("/no/such/file.obj", "test-median"), "t")
+        .unwrap_err();
+    assert!(
+        e.message().contains("/no/such/file.obj") && e.exit_code() == 2,
+        "{e}"
+    );
     assert_eq!(Store::open(dir.path()).unwrap().entries().len(), before);
     let (_, c) = run_all(dir.path(), Versions::default(), &ch);
     assert_eq!(c.computed, 0);
@@ -412,10 +510,18 @@ fn nondeterministic_builder_fails_loudly() {
 
 // ---- encode and focus stages -------------------------------------------------------------------
 
-fn code_chain(build: &str, encode: Option<&str>, params: &[(&str, &str)], compact: &str) -> ChainSpec {
+fn code_chain(
+    build: &str,
+    encode: Option<&str>,
+    params: &[(&str, &str)],
+    compact: &str,
+) -> ChainSpec {
     let mut c = ChainSpec::new("gen:grid:n=40", build);
     c.encode = encode.map(str::to_string);
-    c.params = params.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+    c.params = params
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect();
     c.compact = compact.into();
     c.repeat = 3;
     c
@@ -424,15 +530,33 @@ fn code_chain(build: &str, encode: Option<&str>, params: &[(&str, &str)], compac
 #[test]
 fn encode_stage_cold_warm_and_row_fields() {
     let dir = tempfile::tempdir().unwrap();
-    let ch = vec![code_chain("test-codes", None, &[], "none"), code_chain("test-codes", Some("morton"), &[], "collapse")];
+    let ch = vec![
+        code_chain("test-codes", None, &[], "none"),
+        code_chain("test-codes", Some("morton"), &[], "collapse"),
+    ];
     let (rows, c) = run_all(dir.path(), Versions::default(), &ch);
     // `encode = None` means morton: both chains share load, encode and build.
-    assert_eq!((stage(&c, "load"), stage(&c, "encode"), stage(&c, "build"), stage(&c, "compact")), ((1, 0), (1, 0), (1, 0), (1, 0)));
+    assert_eq!(
+        (
+            stage(&c, "load"),
+            stage(&c, "encode"),
+            stage(&c, "build"),
+            stage(&c, "compact")
+        ),
+        ((1, 0), (1, 0), (1, 0), (1, 0))
+    );
     let r = &rows[0];
     assert_eq!(r.encoder.as_deref(), Some("morton"));
-    assert_eq!(r.encode_params.as_deref(), Some("bits=auto:lbvh,bounds=scene,grid_bits=0"));
+    assert_eq!(
+        r.encode_params.as_deref(),
+        Some("bits=auto:lbvh,bounds=scene,grid_bits=0")
+    );
     assert_eq!(r.code_bits, Some(10));
-    assert_eq!(r.duplicate_code_fraction, Some(0.0), "x = 0..39 are distinct codes");
+    assert_eq!(
+        r.duplicate_code_fraction,
+        Some(0.0),
+        "x = 0..39 are distinct codes"
+    );
     let enc = r.encode_seconds.unwrap();
     assert!(enc > 0.0);
     assert_eq!(r.total_build_seconds, enc + r.build_seconds);
@@ -441,9 +565,19 @@ fn encode_stage_cold_warm_and_row_fields() {
     assert!(r.keys.contains_key("encode"));
     // The build applied the (test) compaction of bottom-up builders: code order reversed.
     let store = Store::open(dir.path()).unwrap();
-    let m = store.read_manifest("build", &Key::from_hex(&r.keys["build"]).unwrap()).unwrap();
-    assert_eq!(m.inputs, vec![format!("load:{}", r.keys["load"]), format!("encode:{}", r.keys["encode"])]);
-    let em = store.read_manifest("encode", &Key::from_hex(&r.keys["encode"]).unwrap()).unwrap();
+    let m = store
+        .read_manifest("build", &Key::from_hex(&r.keys["build"]).unwrap())
+        .unwrap();
+    assert_eq!(
+        m.inputs,
+        vec![
+            format!("load:{}", r.keys["load"]),
+            format!("encode:{}", r.keys["encode"])
+        ]
+    );
+    let em = store
+        .read_manifest("encode", &Key::from_hex(&r.keys["encode"]).unwrap())
+        .unwrap();
     assert_eq!(em.params["encoder"], "morton");
     assert_eq!(em.params["bits"], "auto:lbvh");
     assert_eq!(em.inputs, vec![format!("load:{}", r.keys["load"])]);
@@ -457,44 +591,139 @@ fn encode_stage_cold_warm_and_row_fields() {
 #[test]
 fn encoder_parameter_change_recomputes_encode_and_downstream_only() {
     let dir = tempfile::tempdir().unwrap();
-    run_all(dir.path(), Versions::default(), &[code_chain("test-codes", None, &[], "collapse")]);
-    let (rows, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes", None, &[("bits", "4")], "collapse")]);
-    assert_eq!((stage(&c, "load"), stage(&c, "encode"), stage(&c, "build"), stage(&c, "compact")), ((0, 1), (1, 0), (1, 0), (1, 0)));
+    run_all(
+        dir.path(),
+        Versions::default(),
+        &[code_chain("test-codes", None, &[], "collapse")],
+    );
+    let (rows, c) = run_all(
+        dir.path(),
+        Versions::default(),
+        &[code_chain("test-codes", None, &[("bits", "4")], "collapse")],
+    );
+    assert_eq!(
+        (
+            stage(&c, "load"),
+            stage(&c, "encode"),
+            stage(&c, "build"),
+            stage(&c, "compact")
+        ),
+        ((0, 1), (1, 0), (1, 0), (1, 0))
+    );
     assert_eq!(rows[0].code_bits, Some(4));
-    assert!(rows[0].duplicate_code_fraction.unwrap() > 0.5, "x >= 15 all share the top code");
+    assert!(
+        rows[0].duplicate_code_fraction.unwrap() > 0.5,
+        "x >= 15 all share the top code"
+    );
     assert_eq!(rows[0].method, "test-codes \u{b7} morton bits=4 +collapse");
     // An explicit default spelling shares the keys.
-    let (_, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes", Some("morton"), &[("bits", "auto"), ("grid_bits", "0")], "collapse")]);
+    let (_, c) = run_all(
+        dir.path(),
+        Versions::default(),
+        &[code_chain(
+            "test-codes",
+            Some("morton"),
+            &[("bits", "auto"), ("grid_bits", "0")],
+            "collapse",
+        )],
+    );
     assert_eq!(c.computed, 0);
     // A builder parameter (cost) changes build and compact, not encode.
-    let (_, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes", None, &[("c_t", "1.5")], "collapse")]);
-    assert_eq!((stage(&c, "encode"), stage(&c, "build"), stage(&c, "compact")), ((0, 1), (1, 0), (1, 0)));
+    let (_, c) = run_all(
+        dir.path(),
+        Versions::default(),
+        &[code_chain(
+            "test-codes",
+            None,
+            &[("c_t", "1.5")],
+            "collapse",
+        )],
+    );
+    assert_eq!(
+        (
+            stage(&c, "encode"),
+            stage(&c, "build"),
+            stage(&c, "compact")
+        ),
+        ((0, 1), (1, 0), (1, 0))
+    );
     // Another encoder: new encode node.
-    let (rows, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes", Some("emc64-var"), &[], "none")]);
-    assert_eq!((stage(&c, "load"), stage(&c, "encode"), stage(&c, "build")), ((0, 1), (1, 0), (1, 0)));
-    assert_eq!(rows[0].encode_params.as_deref(), Some("bounds=scene,grid_bits=0"));
+    let (rows, c) = run_all(
+        dir.path(),
+        Versions::default(),
+        &[code_chain("test-codes", Some("emc64-var"), &[], "none")],
+    );
+    assert_eq!(
+        (stage(&c, "load"), stage(&c, "encode"), stage(&c, "build")),
+        ((0, 1), (1, 0), (1, 0))
+    );
+    assert_eq!(
+        rows[0].encode_params.as_deref(),
+        Some("bounds=scene,grid_bits=0")
+    );
     // EMC has no bits: another builder with another `auto` shares the encode node...
-    let (_, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes2", Some("emc64-var"), &[], "none")]);
+    let (_, c) = run_all(
+        dir.path(),
+        Versions::default(),
+        &[code_chain("test-codes2", Some("emc64-var"), &[], "none")],
+    );
     assert_eq!((stage(&c, "encode"), stage(&c, "build")), ((0, 1), (1, 0)));
     // ...while morton bits=auto resolves per builder (auto:ploc is a new encode node).
-    let (rows, c) = run_all(dir.path(), Versions::default(), &[code_chain("test-codes2", None, &[], "none")]);
+    let (rows, c) = run_all(
+        dir.path(),
+        Versions::default(),
+        &[code_chain("test-codes2", None, &[], "none")],
+    );
     assert_eq!(stage(&c, "encode"), (1, 0));
-    assert_eq!(rows[0].encode_params.as_deref(), Some("bits=auto:ploc,bounds=scene,grid_bits=0"));
+    assert_eq!(
+        rows[0].encode_params.as_deref(),
+        Some("bits=auto:ploc,bounds=scene,grid_bits=0")
+    );
     // An encode version bump invalidates encode and downstream, not load.
-    let v = Versions { encode: Versions::default().encode + 1, ..Versions::default() };
-    let (_, c) = run_all(dir.path(), v, &[code_chain("test-codes", None, &[], "collapse")]);
-    assert_eq!((stage(&c, "load"), stage(&c, "encode"), stage(&c, "build"), stage(&c, "compact")), ((0, 1), (1, 0), (1, 0), (1, 0)));
+    let v = Versions {
+        encode: Versions::default().encode + 1,
+        ..Versions::default()
+    };
+    let (_, c) = run_all(
+        dir.path(),
+        v,
+        &[code_chain("test-codes", None, &[], "collapse")],
+    );
+    assert_eq!(
+        (
+            stage(&c, "load"),
+            stage(&c, "encode"),
+            stage(&c, "build"),
+            stage(&c, "compact")
+        ),
+        ((0, 1), (1, 0), (1, 0), (1, 0))
+    );
 }
 
 #[test]
 fn encode_errors_are_input_errors() {
     let dir = tempfile::tempdir().unwrap();
     let mut r = test_runner(dir.path(), Versions::default());
-    let e = r.run_chain(&code_chain("test-median", Some("morton"), &[], "none"), "t").unwrap_err();
-    assert!(e.exit_code() == 2 && e.message().contains("takes no codes"), "{e}");
-    let e = r.run_chain(&code_chain("test-codes", Some("zorder"), &[], "none"), "t").unwrap_err();
-    assert!(e.exit_code() == 2 && e.message().contains("emc64-var"), "{e}");
-    let e = r.run_chain(&code_chain("test-codes", Some("emc64-sort"), &[("bits", "8")], "none"), "t").unwrap_err();
+    let e = r
+        .run_chain(&code_chain("test-median", Some("morton"), &[], "none"), "t")
+        .unwrap_err();
+    assert!(
+        e.exit_code() == 2 && e.message().contains("takes no codes"),
+        "{e}"
+    );
+    let e = r
+        .run_chain(&code_chain("test-codes", Some("zorder"), &[], "none"), "t")
+        .unwrap_err();
+    assert!(
+        e.exit_code() == 2 && e.message().contains("emc64-var"),
+        "{e}"
+    );
+    let e = r
+        .run_chain(
+            &code_chain("test-codes", Some("emc64-sort"), &[("bits", "8")], "none"),
+            "t",
+        )
+        .unwrap_err();
     assert!(e.exit_code() == 2 && e.message().contains("bits"), "{e}");
     assert_eq!(r.counts.computed, 0);
 }
@@ -502,11 +731,19 @@ fn encode_errors_are_input_errors() {
 #[test]
 fn focus_stage_is_cached_and_keyed_by_box() {
     let dir = tempfile::tempdir().unwrap();
-    let focus = |lo: f32, hi: f32| Some(Aabb::new(Vec3::new(lo, -1.0, -1.0), Vec3::new(hi, 2.0, 2.0)));
+    let focus = |lo: f32, hi: f32| {
+        Some(Aabb::new(
+            Vec3::new(lo, -1.0, -1.0),
+            Vec3::new(hi, 2.0, 2.0),
+        ))
+    };
     let mut a = ChainSpec::new("gen:grid:n=30", "test-median");
     a.repeat = 1;
     let plain = run_all(dir.path(), Versions::default(), &[a.clone()]).0;
-    assert_eq!((plain[0].focus_triangles, plain[0].focus_sah_cost), (None, None));
+    assert_eq!(
+        (plain[0].focus_triangles, plain[0].focus_sah_cost),
+        (None, None)
+    );
     assert!(!plain[0].keys.contains_key("focus"));
     a.focus = focus(10.0, 12.0);
     let (rows, c) = run_all(dir.path(), Versions::default(), &[a.clone()]);
@@ -522,7 +759,10 @@ fn focus_stage_is_cached_and_keyed_by_box() {
     a.focus = focus(100.0, 120.0);
     let (rows, c) = run_all(dir.path(), Versions::default(), &[a.clone()]);
     assert_eq!(stage(&c, "focus"), (1, 0));
-    assert_eq!((rows[0].focus_triangles, rows[0].focus_sah_cost), (Some(0), None));
+    assert_eq!(
+        (rows[0].focus_triangles, rows[0].focus_sah_cost),
+        (Some(0), None)
+    );
     // With compaction the focus is measured on the compacted BVH (another key).
     a.focus = focus(10.0, 12.0);
     a.compact = "collapse".into();
@@ -546,7 +786,14 @@ fn optimize_stage_is_cached_and_keyed() {
     };
     let ch = [mk("2", "none"), mk("2", "collapse")];
     let (cold_rows, cold) = run_all(dir.path(), Versions::default(), &ch);
-    assert_eq!((stage(&cold, "build"), stage(&cold, "optimize"), stage(&cold, "compact")), ((1, 0), (1, 0), (1, 0)));
+    assert_eq!(
+        (
+            stage(&cold, "build"),
+            stage(&cold, "optimize"),
+            stage(&cold, "compact")
+        ),
+        ((1, 0), (1, 0), (1, 0))
+    );
     let r = &cold_rows[1];
     assert_eq!(r.optimizer.as_deref(), Some("test-opt"));
     assert_eq!(r.optimize_params.as_deref(), Some("passes=2"));
@@ -555,16 +802,35 @@ fn optimize_stage_is_cached_and_keyed() {
     assert_eq!(r.optimize_trace.as_ref().map(|t| t.len()), Some(3));
     assert_eq!(r.method, "test-median bins=16 +test-opt 2 +collapse");
     assert!(r.keys.contains_key("optimize"));
-    assert_ne!(cold_rows[0].bvh_hash, cold_rows[1].bvh_hash, "compaction reads the optimized tree");
-    assert_eq!(r.total_build_seconds, r.build_seconds + r.optimize_seconds.unwrap());
+    assert_ne!(
+        cold_rows[0].bvh_hash, cold_rows[1].bvh_hash,
+        "compaction reads the optimized tree"
+    );
+    assert_eq!(
+        r.total_build_seconds,
+        r.build_seconds + r.optimize_seconds.unwrap()
+    );
     let (warm_rows, warm) = run_all(dir.path(), Versions::default(), &ch);
     assert_eq!(warm.computed, 0);
-    assert_eq!(warm_rows, cold_rows, "trace and rows come back from the cache");
+    assert_eq!(
+        warm_rows, cold_rows,
+        "trace and rows come back from the cache"
+    );
     // A new optimizer parameter: optimize and compact recompute, build is reused.
     let (_, c) = run_all(dir.path(), Versions::default(), &[mk("3", "collapse")]);
-    assert_eq!((stage(&c, "build"), stage(&c, "optimize"), stage(&c, "compact")), ((0, 1), (1, 0), (1, 0)));
+    assert_eq!(
+        (
+            stage(&c, "build"),
+            stage(&c, "optimize"),
+            stage(&c, "compact")
+        ),
+        ((0, 1), (1, 0), (1, 0))
+    );
     // A lost trace file recomputes the optimize stage, with a correct row.
-    for f in std::fs::read_dir(dir.path().join("optimize")).unwrap().flatten() {
+    for f in std::fs::read_dir(dir.path().join("optimize"))
+        .unwrap()
+        .flatten()
+    {
         if f.path().extension().is_some_and(|e| e == "opt") {
             std::fs::remove_file(f.path()).unwrap();
         }

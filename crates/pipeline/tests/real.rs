@@ -18,7 +18,10 @@ fn all_ray_sets_measure_and_heatmap() {
         let row = r.run_chain(&c, "t").unwrap();
         assert!(row.valid, "{rays}");
         assert_eq!(row.rays_kind.as_deref(), Some(rays));
-        assert!(row.hits.unwrap() > 0 || rays.starts_with("shadow"), "{rays}: {row:?}");
+        assert!(
+            row.hits.unwrap() > 0 || rays.starts_with("shadow"),
+            "{rays}: {row:?}"
+        );
         assert!(row.traversal_steps_per_ray.unwrap() > 0.0);
         assert!(row.trace_seconds.unwrap() > 0.0);
         match rays {
@@ -43,7 +46,11 @@ fn builds_are_bit_identical_at_any_thread_count() {
     let reg = Registry::standard();
     let mut chains = Vec::new();
     for b in &reg.builders {
-        let encoders: &[Option<&str>] = if b.codes.is_some() { &[Some("morton"), Some("emc64-var")] } else { &[None] };
+        let encoders: &[Option<&str>] = if b.codes.is_some() {
+            &[Some("morton"), Some("emc64-var")]
+        } else {
+            &[None]
+        };
         for e in encoders {
             let mut c = ChainSpec::new(scene, b.name);
             c.encode = e.map(str::to_string);
@@ -54,7 +61,13 @@ fn builds_are_bit_identical_at_any_thread_count() {
     assert!(chains.len() >= 3 + 3 * 2);
     let rows = |t: usize| {
         let mut r = Runner::new(Store::temporary().unwrap());
-        with_threads(Some(t), || chains.iter().map(|c| r.run_chain(c, "t").unwrap()).collect::<Vec<_>>()).unwrap()
+        with_threads(Some(t), || {
+            chains
+                .iter()
+                .map(|c| r.run_chain(c, "t").unwrap())
+                .collect::<Vec<_>>()
+        })
+        .unwrap()
     };
     let (one, two) = (rows(1), rows(2));
     assert!(one[0].triangles >= 20_000, "{}", one[0].triangles);
@@ -63,7 +76,11 @@ fn builds_are_bit_identical_at_any_thread_count() {
         assert_eq!((a.threads, b.threads), (1, 2));
         assert_eq!(a.bvh_hash, b.bvh_hash, "{}", a.method);
         assert_eq!(a.keys, b.keys, "{}", a.method);
-        assert_eq!(a.duplicate_code_fraction, b.duplicate_code_fraction, "{}", a.method);
+        assert_eq!(
+            a.duplicate_code_fraction, b.duplicate_code_fraction,
+            "{}",
+            a.method
+        );
     }
 }
 
@@ -79,15 +96,25 @@ fn bottom_up_chain_rows() {
     c.repeat = 2;
     c.rays = Some(RaySpec::parse("random:1000").unwrap());
     // The sphere (radius 1 at the origin) without the outlier.
-    c.focus = Some(bvhlab_bvh::Aabb::new(glam::Vec3::splat(-1.5), glam::Vec3::splat(1.5)));
+    c.focus = Some(bvhlab_bvh::Aabb::new(
+        glam::Vec3::splat(-1.5),
+        glam::Vec3::splat(1.5),
+    ));
     let row = r.run_chain(&c, "t").unwrap();
     assert!(row.valid);
     assert_eq!(row.method, "aac fast \u{b7} morton");
     assert_eq!(row.build_params, "delta=4,epsilon=0.2");
-    assert_eq!(row.encode_params.as_deref(), Some("bits=auto:aac,bounds=scene,grid_bits=0"));
+    assert_eq!(
+        row.encode_params.as_deref(),
+        Some("bits=auto:aac,bounds=scene,grid_bits=0")
+    );
     assert!(row.code_bits.unwrap() > 0);
     // The far outlier squeezes the sphere into few Morton cells: many shared codes.
-    assert!(row.duplicate_code_fraction.unwrap() > 0.5, "{:?}", row.duplicate_code_fraction);
+    assert!(
+        row.duplicate_code_fraction.unwrap() > 0.5,
+        "{:?}",
+        row.duplicate_code_fraction
+    );
     assert_eq!(row.focus_triangles, Some(row.triangles - 1));
     let f = row.focus_sah_cost.unwrap();
     assert!(f.is_finite() && f > 0.0);
@@ -102,8 +129,24 @@ fn bottom_up_chain_rows() {
 fn gen_spellings_share_a_key() {
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
-    let a = r.run_chain(&ChainSpec { repeat: 1, ..ChainSpec::new("gen:sphere", "sweep-sah") }, "t").unwrap();
-    let b = r.run_chain(&ChainSpec { repeat: 1, ..ChainSpec::new("gen:sphere:n=20000", "sweep-sah") }, "t").unwrap();
+    let a = r
+        .run_chain(
+            &ChainSpec {
+                repeat: 1,
+                ..ChainSpec::new("gen:sphere", "sweep-sah")
+            },
+            "t",
+        )
+        .unwrap();
+    let b = r
+        .run_chain(
+            &ChainSpec {
+                repeat: 1,
+                ..ChainSpec::new("gen:sphere:n=20000", "sweep-sah")
+            },
+            "t",
+        )
+        .unwrap();
     assert_eq!(a.keys, b.keys);
     assert_eq!(r.counts.computed, 2);
 }

@@ -33,18 +33,27 @@ const ENCODERS: &[(&str, &[(&str, &str)])] = &[
     ("morton", &[("grid_bits", "9")]),
 ];
 
-fn check(ctx: &str, bvh: &Bvh, scene: &Scene, boxes: &[bvhlab_bvh::Aabb], rays: &[Ray], want: &[bvhlab_trace::Hit]) {
+fn check(
+    ctx: &str,
+    bvh: &Bvh,
+    scene: &Scene,
+    boxes: &[bvhlab_bvh::Aabb],
+    rays: &[Ray],
+    want: &[bvhlab_trace::Hit],
+) {
     validate(bvh, boxes).unwrap_or_else(|e| panic!("{ctx}: invalid: {e}"));
     let got = trace(bvh, &scene.triangles, rays);
     for (i, (g, w)) in got.hits.iter().zip(want).enumerate() {
-        let same =
-            g.prim == w.prim || (g.is_hit() && w.is_hit() && (g.t - w.t).abs() <= 1e-4 * w.t.abs().max(1e-30));
+        let same = g.prim == w.prim
+            || (g.is_hit() && w.is_hit() && (g.t - w.t).abs() <= 1e-4 * w.t.abs().max(1e-30));
         assert!(same, "{ctx}: ray {i} got {g:?}, brute force {w:?}");
     }
 }
 
 fn raw(kv: &[(&str, &str)]) -> BTreeMap<String, String> {
-    kv.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
+    kv.iter()
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect()
 }
 
 /// A scene with `n` random rays (seeded) and their brute-force closest hits.
@@ -60,10 +69,19 @@ fn case(spec: &str, n: usize, seed: u64) -> Case {
     let scene = load_scene(spec).unwrap();
     let (boxes, centers) = scene.boxes_and_centers();
     let b = scene.bounds();
-    let radius = centers.iter().map(|c| (*c - b.center()).length()).fold(0.0, f32::max);
+    let radius = centers
+        .iter()
+        .map(|c| (*c - b.center()).length())
+        .fold(0.0, f32::max);
     let rays = random_rays(&b, radius, n, seed);
     let want = brute_force(&scene.triangles, &rays);
-    Case { scene, boxes, centers, rays, want }
+    Case {
+        scene,
+        boxes,
+        centers,
+        rays,
+        want,
+    }
 }
 
 #[test]
@@ -71,32 +89,81 @@ fn every_registered_builder_matches_brute_force() {
     let reg = Registry::standard();
     let cost = CostParams::default();
     for spec in SCENES {
-        let Case { scene, boxes, centers, rays, want } = case(spec, 3000, 7);
+        let Case {
+            scene,
+            boxes,
+            centers,
+            rays,
+            want,
+        } = case(spec, 3000, 7);
         for info in &reg.builders {
             if info.codes.is_none() {
                 // Builders without a leaf threshold (incremental: one primitive per leaf) run once.
                 let has_leaf = info.params.iter().any(|p| p.name == "leaf");
-                for leaf in if has_leaf { &["1", "2"][..] } else { &["1"][..] } {
-                    let params = if has_leaf { raw(&[("leaf", leaf)]) } else { raw(&[]) };
+                for leaf in if has_leaf {
+                    &["1", "2"][..]
+                } else {
+                    &["1"][..]
+                } {
+                    let params = if has_leaf {
+                        raw(&[("leaf", leaf)])
+                    } else {
+                        raw(&[])
+                    };
                     let resolved = reg.resolve(info.name, &params, cost).unwrap();
                     let built = info.construct(&boxes, &centers, None, &resolved);
-                    for (what, bvh) in [("built", built.clone()), ("collapsed", collapse(&built, cost))] {
-                        check(&format!("{spec} {} leaf={leaf} {what}", info.name), &bvh, &scene, &boxes, &rays, &want);
+                    for (what, bvh) in [
+                        ("built", built.clone()),
+                        ("collapsed", collapse(&built, cost)),
+                    ] {
+                        check(
+                            &format!("{spec} {} leaf={leaf} {what}", info.name),
+                            &bvh,
+                            &scene,
+                            &boxes,
+                            &rays,
+                            &want,
+                        );
                     }
                 }
                 continue;
             }
             for (enc, params) in ENCODERS {
-                let (resolved, encoder) = reg.resolve_chain(info.name, Some(enc), None, &raw(params), cost).unwrap().parts();
+                let (resolved, encoder) = reg
+                    .resolve_chain(info.name, Some(enc), None, &raw(params), cost)
+                    .unwrap()
+                    .parts();
                 let encoder = encoder.expect("code builders have an encoder");
                 let e = bvhlab_morton::encode(&boxes, &centers, &encoder.config);
-                let codes = SortedCodes { order: &e.order, codes: &e.codes, code_bits: e.code_bits };
-                let ctx = format!("{spec} {} {}", reg.label(&resolved), reg.encoder_label(&encoder));
+                let codes = SortedCodes {
+                    order: &e.order,
+                    codes: &e.codes,
+                    code_bits: e.code_bits,
+                };
+                let ctx = format!(
+                    "{spec} {} {}",
+                    reg.label(&resolved),
+                    reg.encoder_label(&encoder)
+                );
                 // The raw single-primitive-leaf tree and what the build stage stores (+ compaction).
                 let raw_tree = (info.run)(&boxes, &centers, Some(&codes), &resolved);
-                check(&format!("{ctx} raw"), &raw_tree, &scene, &boxes, &rays, &want);
+                check(
+                    &format!("{ctx} raw"),
+                    &raw_tree,
+                    &scene,
+                    &boxes,
+                    &rays,
+                    &want,
+                );
                 let built = info.construct(&boxes, &centers, Some(&codes), &resolved);
-                check(&format!("{ctx} built"), &built, &scene, &boxes, &rays, &want);
+                check(
+                    &format!("{ctx} built"),
+                    &built,
+                    &scene,
+                    &boxes,
+                    &rays,
+                    &want,
+                );
             }
         }
     }
@@ -110,21 +177,50 @@ fn every_registered_optimizer_matches_brute_force() {
     let reg = Registry::standard();
     let cost = CostParams::default();
     for spec in SCENES {
-        let Case { scene, boxes, centers, rays, want } = case(spec, 2000, 11);
-        for (builder, leaf) in [("spatial-median", "1"), ("sweep-sah", "1"), ("binned-sah", "4")] {
+        let Case {
+            scene,
+            boxes,
+            centers,
+            rays,
+            want,
+        } = case(spec, 2000, 11);
+        for (builder, leaf) in [
+            ("spatial-median", "1"),
+            ("sweep-sah", "1"),
+            ("binned-sah", "4"),
+        ] {
             let r = reg.resolve(builder, &raw(&[("leaf", leaf)]), cost).unwrap();
-            let built = reg.get(builder).unwrap().construct(&boxes, &centers, None, &r);
+            let built = reg
+                .get(builder)
+                .unwrap()
+                .construct(&boxes, &centers, None, &r);
             let before = bvhlab_bvh::metrics(&built, cost).sah_cost;
             for info in &reg.optimizers {
                 // Bounded so the suite stays fast; convergence is the optimizers' own tests' job.
-                let o = reg.resolve_optimizer(info.name, &raw(&[("max_passes", "20")]), cost).unwrap();
+                let o = reg
+                    .resolve_optimizer(info.name, &raw(&[("max_passes", "20")]), cost)
+                    .unwrap();
                 let out = (info.run)(&built, &o);
                 let ctx = format!("{spec} {builder} leaf={leaf} {}", reg.optimizer_label(&o));
                 check(&ctx, &out.bvh, &scene, &boxes, &rays, &want);
-                check(&format!("{ctx} collapsed"), &collapse(&out.bvh, cost), &scene, &boxes, &rays, &want);
+                check(
+                    &format!("{ctx} collapsed"),
+                    &collapse(&out.bvh, cost),
+                    &scene,
+                    &boxes,
+                    &rays,
+                    &want,
+                );
                 let after = bvhlab_bvh::metrics(&out.bvh, cost).sah_cost;
-                assert!(after <= before * (1.0 + 1e-9), "{ctx}: keep_best returned cost {after} > input {before}");
-                assert_eq!(out.trace.first().map(|p| p.pass), Some(0), "{ctx}: trace starts at pass 0");
+                assert!(
+                    after <= before * (1.0 + 1e-9),
+                    "{ctx}: keep_best returned cost {after} > input {before}"
+                );
+                assert_eq!(
+                    out.trace.first().map(|p| p.pass),
+                    Some(0),
+                    "{ctx}: trace starts at pass 0"
+                );
             }
         }
     }

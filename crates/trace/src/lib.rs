@@ -6,4 +6,7 @@ pub mod rays;
 pub mod traverse;
 
 pub use rays::{primary_rays, random_rays, shadow_rays, Camera, Ray};
-pub use traverse::{brute_force, trace, Hit, TraceStats};
+pub use traverse::{
+    accept, brute_force, brute_force_one, intersect_triangle, trace, trace_with, Hit, RayBox,
+    Stack, TraceStats, SLAB_ROBUST,
+};

@@ -75,25 +75,27 @@ pub fn intersect_triangle(origin: Vec3, dir: Vec3, tri: &Triangle) -> Option<f32
 /// The shared acceptance rule: `t` in (0, best.t], closer wins, exact ties go to the lower index.
 /// `best` starts as `(tmax, u32::MAX)`, which makes the range (0, tmax].
 #[inline(always)]
-fn accept(t: f32, prim: u32, best: &mut Hit) {
+pub fn accept(t: f32, prim: u32, best: &mut Hit) {
     if t > 0.0 && (t < best.t || (t == best.t && prim < best.prim)) {
         *best = Hit { t, prim };
     }
 }
 
-/// Ray data precomputed once per ray for the slab test.
-struct RayBox {
-    origin: Vec3,
-    inv_dir: Vec3,
+/// Ray data precomputed once per ray for the slab test (shared with the compressed layouts'
+/// traversals, so every layout uses the same conservative box test).
+pub struct RayBox {
+    pub origin: Vec3,
+    pub inv_dir: Vec3,
 }
 
 /// 1 + 2 * gamma(3) with gamma(n) = n*eps / (1 - n*eps), eps = 2^-24: the factor that makes the
 /// slab test conservative under float rounding (Ize 2013, "Robust BVH Ray Traversal").
-const SLAB_ROBUST: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+pub const SLAB_ROBUST: f32 =
+    1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
 
 impl RayBox {
     #[inline(always)]
-    fn new(ray: &Ray) -> RayBox {
+    pub fn new(ray: &Ray) -> RayBox {
         // A zero direction component would give an infinite inverse, and (bound - origin) * inf
         // is NaN when the origin lies exactly on the slab plane. A huge finite inverse instead
         // gives 0 there (the ray runs inside the plane: conservatively "inside") and +-huge/inf
@@ -117,7 +119,7 @@ impl RayBox {
     /// never NaN (finite inverse, finite or infinite bounds), and a NaN would only make `near <= far`
     /// false, i.e. a miss.
     #[inline(always)]
-    fn hit(&self, b: &Aabb, tmax: f32) -> Option<f32> {
+    pub fn hit(&self, b: &Aabb, tmax: f32) -> Option<f32> {
         #[inline(always)]
         fn mn(a: f32, b: f32) -> f32 {
             if a < b {
@@ -156,14 +158,20 @@ const STACK_SIZE: usize = 64;
 
 /// LIFO of (node index, entry distance): fixed array first, then a spill vector whose entries
 /// are always above the array's, so a BVH deeper than the array never panics.
-struct Stack {
+pub struct Stack {
     items: [(u32, f32); STACK_SIZE],
     len: usize,
     spill: Vec<(u32, f32)>,
 }
 
+impl Default for Stack {
+    fn default() -> Self {
+        Stack::new()
+    }
+}
+
 impl Stack {
-    fn new() -> Stack {
+    pub fn new() -> Stack {
         Stack {
             items: [(0, 0.0); STACK_SIZE],
             len: 0,
@@ -171,7 +179,7 @@ impl Stack {
         }
     }
     #[inline(always)]
-    fn push(&mut self, e: (u32, f32)) {
+    pub fn push(&mut self, e: (u32, f32)) {
         if self.len < STACK_SIZE {
             self.items[self.len] = e;
             self.len += 1;
@@ -180,7 +188,7 @@ impl Stack {
         }
     }
     #[inline(always)]
-    fn pop(&mut self) -> Option<(u32, f32)> {
+    pub fn pop(&mut self) -> Option<(u32, f32)> {
         if let Some(e) = self.spill.pop() {
             return Some(e);
         }
@@ -190,7 +198,7 @@ impl Stack {
         self.len -= 1;
         Some(self.items[self.len])
     }
-    fn clear(&mut self) {
+    pub fn clear(&mut self) {
         self.len = 0;
         self.spill.clear();
     }
@@ -313,6 +321,19 @@ const CHUNK: usize = 1024;
 
 /// Traces every ray (in parallel with rayon; results are per-ray so independent of thread count).
 pub fn trace(bvh: &Bvh, tris: &[Triangle], rays: &[Ray]) -> TraceStats {
+    trace_with(rays, Stack::new, |stack, ray| {
+        trace_one(&bvh.nodes, &bvh.prim_indices, tris, ray, stack)
+    })
+}
+
+/// Runs a per-ray closest-hit function over all rays in parallel and gathers the counters; every
+/// layout's traversal (crates/layout) goes through here, so all of them are measured the same way.
+/// `init` makes the per-task scratch (a traversal stack); `one` returns (hit, steps, tests).
+pub fn trace_with<S, I, F>(rays: &[Ray], init: I, one: F) -> TraceStats
+where
+    I: Fn() -> S + Sync + Send,
+    F: Fn(&mut S, &Ray) -> (Hit, u32, u32) + Sync + Send,
+{
     let n = rays.len();
     let mut hits = vec![Hit::NONE; n];
     let mut steps = vec![0u32; n];
@@ -321,9 +342,9 @@ pub fn trace(bvh: &Bvh, tris: &[Triangle], rays: &[Ray]) -> TraceStats {
         .zip(steps.par_chunks_mut(CHUNK))
         .zip(intersections.par_chunks_mut(CHUNK))
         .zip(rays.par_chunks(CHUNK))
-        .for_each_init(Stack::new, |stack, (((h, s), x), r)| {
+        .for_each_init(&init, |scratch, (((h, s), x), r)| {
             for i in 0..r.len() {
-                let (hit, st, it) = trace_one(&bvh.nodes, &bvh.prim_indices, tris, &r[i], stack);
+                let (hit, st, it) = one(scratch, &r[i]);
                 h[i] = hit;
                 s[i] = st;
                 x[i] = it;

@@ -264,7 +264,10 @@ fn equal_t_ties_behind_flat_boxes_are_found() {
         n: 16,
         t: 0.1,
         prune: true,
-        top: bvhlab_build::TopDownConfig { leaf: 1, ..Default::default() },
+        top: bvhlab_build::TopDownConfig {
+            leaf: 1,
+            ..Default::default()
+        },
     };
     let bvh = bvhlab_build::bonsai::build(&boxes, &centers, &cfg);
     let tris = &scene.triangles;

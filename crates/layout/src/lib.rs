@@ -1,0 +1,238 @@
+//! Memory layouts of an acceleration structure, each with its own closest-hit traversal
+//! (Kilian 2021, chapters 4 and 5):
+//!
+//! - `bvh2`: the flat 32-byte-node BVH every other stage produces (the baseline);
+//! - `qbvh`: Kilian 5.2: quantized child boxes (`bits` per coordinate), the topology as a 1-bit
+//!   breadth-first bit field in fixed-size chunks (rank/popcount addressing), node info outside
+//!   the chunks, an exact box per chunk root; quantization `frame` = parent box or chunk-root box;
+//! - `octree`: Kilian 4.1: 32-bit nodes, implicit boxes, primitive references may repeat;
+//! - `octree1`: Kilian 4.2: the same octree as a 1-bit breadth-first bit field in chunks.
+//!
+//! Every layout must find exactly the closest hit brute force finds (conservative boxes, the shared
+//! triangle test and tie rule of `bvhlab_trace`). Algorithms here are plain functions over slices:
+//! no files, hashing or caching (that is the pipeline's job).
+pub mod bvh2;
+pub mod chunks;
+pub mod octree;
+pub mod octree1;
+pub mod qbvh;
+
+use bvhlab_bvh::{Bvh, CostParams};
+use bvhlab_geom::Triangle;
+use bvhlab_trace::{Ray, TraceStats};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Layout names accepted by `build` (the pipeline adds `auto`, a search over these).
+pub const LAYOUTS: [&str; 4] = ["bvh2", "qbvh", "octree", "octree1"];
+
+/// What a layout costs in memory. "Topology" is Kilian's *size of topology* (6.2): everything
+/// traversal reads at every step (nodes; chunks + node info), not the leaf arrays
+/// (`primitives_list`, `offset_list`/`sizes_list`), which `total_bytes` adds.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Memory {
+    pub topology_bytes: u64,
+    pub total_bytes: u64,
+    /// Nodes of the topology (bvh2/qbvh: inner + leaves; octrees: all octree nodes including the root).
+    pub nodes: u64,
+    /// Fixed-size chunks (0 for unchunked layouts).
+    pub chunks: u64,
+    /// Mean over chunks of used node slots / node slots (0 for unchunked layouts; Kilian fig. 4.16).
+    pub chunk_fill: f64,
+    /// Primitive references in the leaf arrays (octrees repeat primitives; BVHs: = triangles).
+    pub prim_refs: u64,
+}
+
+impl Memory {
+    /// Topology bits per node (Kilian's "bits per node").
+    pub fn topology_bits_per_node(&self) -> f64 {
+        if self.nodes == 0 {
+            0.0
+        } else {
+            self.topology_bytes as f64 * 8.0 / self.nodes as f64
+        }
+    }
+}
+
+/// A layout name with its parameters, validated and with every default filled in (canonical: the
+/// pipeline keys the layout stage by `name` + `params`).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LayoutSpec {
+    pub name: String,
+    pub params: BTreeMap<String, String>,
+}
+
+/// (name, default) of each layout's parameters.
+pub fn param_schema(name: &str) -> Option<&'static [(&'static str, &'static str)]> {
+    Some(match name {
+        "bvh2" => &[],
+        "qbvh" => qbvh::PARAMS,
+        "octree" => octree::PARAMS,
+        "octree1" => octree1::PARAMS,
+        _ => return None,
+    })
+}
+
+impl LayoutSpec {
+    /// Validates `name` and `params` (unknown names and bad values are errors naming the valid
+    /// choices) and fills in defaults.
+    pub fn parse(name: &str, given: &BTreeMap<String, String>) -> Result<LayoutSpec, String> {
+        let schema = param_schema(name).ok_or_else(|| {
+            format!(
+                "unknown layout `{name}`; valid: {}, auto",
+                LAYOUTS.join(", ")
+            )
+        })?;
+        let mut params = BTreeMap::new();
+        for (k, v) in given {
+            if !schema.iter().any(|(n, _)| n == k) {
+                let valid: Vec<&str> = schema.iter().map(|(n, _)| *n).collect();
+                return Err(format!(
+                    "layout `{name}` has no parameter `{k}`; its parameters: {}",
+                    if valid.is_empty() {
+                        "none".to_string()
+                    } else {
+                        valid.join(", ")
+                    }
+                ));
+            }
+            params.insert(k.clone(), v.trim().to_string());
+        }
+        for (k, d) in schema {
+            params.entry(k.to_string()).or_insert_with(|| d.to_string());
+        }
+        let spec = LayoutSpec {
+            name: name.to_string(),
+            params,
+        };
+        match name {
+            "qbvh" => qbvh::Config::from_spec(&spec).map(|_| ())?,
+            "octree" => octree::Config::from_spec(&spec).map(|_| ())?,
+            "octree1" => octree1::Config::from_spec(&spec).map(|_| ())?,
+            _ => {}
+        }
+        Ok(spec)
+    }
+
+    /// Typed parameter (after `parse`, every parameter of the schema is present).
+    pub fn get<T: std::str::FromStr>(&self, key: &str) -> Result<T, String> {
+        let v = self
+            .params
+            .get(key)
+            .ok_or_else(|| format!("layout `{}`: missing parameter `{key}`", self.name))?;
+        v.parse::<T>()
+            .map_err(|_| format!("layout `{}`: bad value `{v}` for `{key}`", self.name))
+    }
+
+    /// `k=v` joined by `,` in key order.
+    pub fn params_string(&self) -> String {
+        self.params
+            .iter()
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect::<Vec<_>>()
+            .join(",")
+    }
+}
+
+/// A built layout (the layout stage's artifact).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Layout {
+    Bvh2(bvh2::Bvh2),
+    Qbvh(qbvh::Qbvh),
+    Octree(octree::Octree),
+    Octree1(octree1::Octree1),
+}
+
+/// Builds `spec` for a scene. BVH layouts store `bvh` (its topology is kept exactly); octrees are
+/// built from the triangles alone and ignore `bvh`.
+pub fn build(spec: &LayoutSpec, bvh: &Bvh, tris: &[Triangle]) -> Result<Layout, String> {
+    Ok(match spec.name.as_str() {
+        "bvh2" => Layout::Bvh2(bvh2::Bvh2::build(bvh)),
+        "qbvh" => Layout::Qbvh(qbvh::Qbvh::build(bvh, &qbvh::Config::from_spec(spec)?)?),
+        "octree" => Layout::Octree(octree::Octree::build(
+            tris,
+            &octree::Config::from_spec(spec)?,
+        )?),
+        "octree1" => Layout::Octree1(octree1::Octree1::build(
+            tris,
+            &octree1::Config::from_spec(spec)?,
+        )?),
+        other => {
+            return Err(format!(
+                "unknown layout `{other}`; valid: {}",
+                LAYOUTS.join(", ")
+            ))
+        }
+    })
+}
+
+/// Whether a layout's structure depends on the input BVH (octrees are built from the scene alone,
+/// so the pipeline keys them by the scene only).
+pub fn uses_bvh(name: &str) -> bool {
+    matches!(name, "bvh2" | "qbvh")
+}
+
+impl Layout {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Layout::Bvh2(_) => "bvh2",
+            Layout::Qbvh(_) => "qbvh",
+            Layout::Octree(_) => "octree",
+            Layout::Octree1(_) => "octree1",
+        }
+    }
+
+    pub fn memory(&self) -> Memory {
+        match self {
+            Layout::Bvh2(l) => l.memory(),
+            Layout::Qbvh(l) => l.memory(),
+            Layout::Octree(l) => l.memory(),
+            Layout::Octree1(l) => l.memory(),
+        }
+    }
+
+    /// Closest hits of all rays with this layout's own traversal. `steps` = nodes entered (boxes
+    /// hit and not culled), `intersections` = ray-triangle tests (repeated references count).
+    pub fn trace(&self, tris: &[Triangle], rays: &[Ray]) -> TraceStats {
+        match self {
+            Layout::Bvh2(l) => l.trace(tris, rays),
+            Layout::Qbvh(l) => l.trace(tris, rays),
+            Layout::Octree(l) => l.trace(tris, rays),
+            Layout::Octree1(l) => l.trace(tris, rays),
+        }
+    }
+
+    /// SAH cost (thesis eq. 4) of the boxes traversal actually tests: quantized boxes for qbvh,
+    /// implicit octant boxes for octrees (leaf cost counts repeated references).
+    pub fn sah_cost(&self, cost: CostParams) -> f64 {
+        match self {
+            Layout::Bvh2(l) => l.sah_cost(cost),
+            Layout::Qbvh(l) => l.sah_cost(cost),
+            Layout::Octree(l) => l.sah_cost(cost),
+            Layout::Octree1(l) => l.sah_cost(cost),
+        }
+    }
+
+    /// Structural check: BVH layouts reference every triangle exactly once and their (quantized)
+    /// boxes contain their children and triangles; octrees reference every triangle at least once
+    /// and only from leaves whose implicit box overlaps the triangle's box.
+    pub fn validate(&self, tris: &[Triangle]) -> Result<(), String> {
+        match self {
+            Layout::Bvh2(l) => l.validate(tris),
+            Layout::Qbvh(l) => l.validate(tris),
+            Layout::Octree(l) => l.validate(tris),
+            Layout::Octree1(l) => l.validate(tris),
+        }
+    }
+
+    /// The uncompressed layout with the same topology, against which extra box hits and extra
+    /// triangle tests are counted: qbvh -> bvh2 of the same BVH, octree1 -> octree with the same
+    /// construction parameters. `None` when `self` is already uncompressed (bvh2, octree).
+    pub fn uncompressed(&self, bvh: &Bvh, tris: &[Triangle]) -> Option<Layout> {
+        match self {
+            Layout::Bvh2(_) | Layout::Octree(_) => None,
+            Layout::Qbvh(_) => Some(Layout::Bvh2(bvh2::Bvh2::build(bvh))),
+            Layout::Octree1(l) => l.uncompressed(tris).map(Layout::Octree),
+        }
+    }
+}
