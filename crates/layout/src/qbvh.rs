@@ -144,11 +144,7 @@ impl Grid {
 
     #[inline(always)]
     fn deq(&self, a: usize, k: u32, max_key: u32) -> f32 {
-        if k >= max_key {
-            self.hi[a]
-        } else {
-            self.lo[a] + k as f32 * self.step[a]
-        }
+        deq_value(self.lo[a], self.step[a], self.hi[a], k, max_key)
     }
 
     /// Dequantized box of a key (min xyz, max xyz).
@@ -166,6 +162,19 @@ impl Grid {
                 self.deq(2, k[5], max_key),
             ),
         }
+    }
+
+    /// The boxes of two siblings at once (the same `deq_value` per coordinate, written as one
+    /// 12-lane loop so that it vectorizes).
+    #[inline(always)]
+    fn dequantize_pair(&self, k: &[u32; 12], max_key: u32) -> (Aabb, Aabb) {
+        let mut o = [0.0f32; 12];
+        for i in 0..12 {
+            let a = i % 3;
+            o[i] = deq_value(self.lo[a], self.step[a], self.hi[a], k[i], max_key);
+        }
+        let v = |j: usize| Vec3::new(o[j], o[j + 1], o[j + 2]);
+        (Aabb::new(v(0), v(3)), Aabb::new(v(6), v(9)))
     }
 
     /// Largest key whose dequantized value is still <= `e` (0, i.e. `lo` exactly, when `e` is
@@ -229,6 +238,19 @@ impl Grid {
             k[a + 3] = self.key_max(a, mx[a], max_key);
         }
         k
+    }
+}
+
+/// THE dequantization (build, traversal, validation and SAH all go through here): key 0 gives `lo`
+/// exactly (`lo + 0 * step`, `step` finite), the top key `hi` exactly; keys are at most 16 bits,
+/// so the i32 conversion is exact (and one instruction, unlike u32).
+#[inline(always)]
+fn deq_value(lo: f32, step: f32, hi: f32, k: u32, max_key: u32) -> f32 {
+    let v = lo + (k as i32) as f32 * step;
+    if k >= max_key {
+        hi
+    } else {
+        v
     }
 }
 
@@ -353,16 +375,22 @@ fn header(words: &[u64], base: usize) -> Header {
     }
 }
 
-/// 1-bits strictly before bit `i` of a chunk's bit field, and bit `i` itself.
+/// 1-bits strictly before bit `i` of a chunk's bit field, and bit `i` itself. Short bit fields
+/// (chunks up to 72 bytes) are ranked without a data-dependent loop.
 #[inline(always)]
 fn rank_bit(bf: &[u64], i: usize) -> (u32, bool) {
     let (w, b) = (i >> 6, i & 63);
-    let mut r = 0;
-    for x in &bf[..w] {
-        r += x.count_ones();
-    }
     let x = bf[w];
-    r += (x & ((1u64 << b) - 1)).count_ones();
+    let mut r = (x & ((1u64 << b) - 1)).count_ones();
+    if bf.len() <= 4 {
+        for (j, y) in bf.iter().enumerate() {
+            r += (y & if j < w { !0 } else { 0 }).count_ones();
+        }
+    } else {
+        for y in &bf[..w] {
+            r += y.count_ones();
+        }
+    }
     (r, x >> b & 1 == 1)
 }
 
@@ -520,15 +548,49 @@ impl Qbvh {
         tris: &[Triangle],
         rays: &[Ray],
     ) -> TraceStats {
+        // rank() is popcount; the default x86-64 target has no popcnt instruction, so use it
+        // when the CPU has it (detected once), with the portable fallback otherwise.
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("popcnt")
+            && std::arch::is_x86_feature_detected!("sse4.1")
+        {
+            return bvhlab_trace::trace_with(rays, QStack::<M::B>::new, |stack, ray| {
+                // SAFETY: the features were detected above.
+                unsafe { self.trace_one_popcnt::<K, M>(kr, tris, ray, stack) }
+            });
+        }
         bvhlab_trace::trace_with(rays, QStack::<M::B>::new, |stack, ray| {
             self.trace_one::<K, M>(kr, tris, ray, stack)
         })
     }
 
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "popcnt,sse4.1")]
+    unsafe fn trace_one_popcnt<K: KeyReader, M: Mode>(
+        &self,
+        kr: K,
+        tris: &[Triangle],
+        ray: &Ray,
+        stack: &mut QStack<M::B>,
+    ) -> (Hit, u32, u32) {
+        self.trace_one::<K, M>(kr, tris, ray, stack)
+    }
+
+    #[inline(always)]
+    fn leaf(&self, l: usize, tris: &[Triangle], ray: &Ray, best: &mut Hit, tests: &mut u32) {
+        let (a, b) = (self.offsets[l] as usize, self.offsets[l + 1] as usize);
+        for &p in &self.prims[a..b] {
+            *tests += 1;
+            if let Some(t) = intersect_triangle(ray.origin, ray.dir, &tris[p as usize]) {
+                accept(t, p, best);
+            }
+        }
+    }
+
     /// Closest hit of one ray, same semantics as `bvhlab_trace::trace`: steps = nodes entered
     /// (the root counts), both child boxes tested, the nearer entry first, popped entries culled
     /// when beyond the closest hit (with the slab test's margin).
-    #[inline]
+    #[inline(always)]
     fn trace_one<K: KeyReader, M: Mode>(
         &self,
         kr: K,
@@ -549,21 +611,7 @@ impl Qbvh {
         }
         let mut steps = 1u32;
         let mut tests = 0u32;
-        let (words, keys, offsets, prims) = (
-            &self.words[..],
-            &self.keys[..],
-            &self.offsets[..],
-            &self.prims[..],
-        );
-        let leaf = |l: usize, best: &mut Hit, tests: &mut u32| {
-            let (a, b) = (offsets[l] as usize, offsets[l + 1] as usize);
-            for &p in &prims[a..b] {
-                *tests += 1;
-                if let Some(t) = intersect_triangle(ray.origin, ray.dir, &tris[p as usize]) {
-                    accept(t, p, best);
-                }
-            }
-        };
+        let (words, keys) = (&self.words[..], &self.keys[..]);
         let finish = |best: Hit, steps, tests| {
             let h = if best.prim == u32::MAX {
                 Hit::NONE
@@ -573,7 +621,7 @@ impl Qbvh {
             (h, steps, tests)
         };
         if words.is_empty() {
-            leaf(0, &mut best, &mut tests);
+            self.leaf(0, tris, ray, &mut best, &mut tests);
             return finish(best, steps, tests);
         }
         let wpc = self.chunk_bytes as usize / 8;
@@ -586,11 +634,13 @@ impl Qbvh {
         let mut pc = 0usize;
         let mut ps = 0usize;
         let mut grid = Grid::new(&self.world, inv_max);
+        // Chunk frame: the grid only changes with the chunk, so it is cached (Kilian 5.2.3: the
+        // chunk frame needs no box per stack entry).
+        let mut grid_chunk = 0usize;
         loop {
             let g = header(words, pc * wpc).node_offset as usize + ps;
             let k = kr.pair(keys, g);
-            let b0 = grid.dequantize(&k[..6], max_key);
-            let b1 = grid.dequantize(&k[6..], max_key);
+            let (b0, b1) = grid.dequantize_pair(&k, max_key);
             let h0 = rb.hit(&b0, best.t);
             let h1 = rb.hit(&b1, best.t);
             let mut cur = match (h0, h1) {
@@ -630,22 +680,25 @@ impl Qbvh {
                 let (r, inner) = rank_bit(&words[base + HEADER_WORDS..base + wpc], s);
                 let h = header(words, base);
                 if !inner {
-                    leaf(
-                        h.leaf_offset as usize + s - r as usize,
-                        &mut best,
-                        &mut tests,
-                    );
+                    let l = h.leaf_offset as usize + s - r as usize;
+                    self.leaf(l, tris, ray, &mut best, &mut tests);
                     cur = stack.pop_within(best.t * SLAB_ROBUST);
                     continue;
                 }
                 if r < inner_groups {
                     pc = c;
                     ps = 2 * (r as usize + 1);
-                    grid = M::grid(&b, words, base, inv_max);
+                    if M::PARENT {
+                        grid = Grid::new(&M::as_box(&b), inv_max);
+                    } else if c != grid_chunk {
+                        grid = Grid::new(&chunk_box(words, base), inv_max);
+                        grid_chunk = c;
+                    }
                 } else {
                     pc = (h.child_chunks + r - inner_groups) as usize;
                     ps = 0;
                     grid = Grid::new(&chunk_box(words, pc * wpc), inv_max);
+                    grid_chunk = pc;
                 }
                 break;
             }
@@ -854,31 +907,34 @@ impl Qbvh {
 /// node's dequantized box (Kilian 5.2.3's "extra stack of AABBs").
 trait Mode {
     type B: Copy + Default + Send;
+    const PARENT: bool;
     fn carry(b: &Aabb) -> Self::B;
-    fn grid(b: &Self::B, words: &[u64], base: usize, inv_max: f32) -> Grid;
+    fn as_box(b: &Self::B) -> Aabb;
 }
 
 struct ChunkMode;
 impl Mode for ChunkMode {
     type B = ();
+    const PARENT: bool = false;
     #[inline(always)]
     fn carry(_: &Aabb) {}
     #[inline(always)]
-    fn grid(_: &(), words: &[u64], base: usize, inv_max: f32) -> Grid {
-        Grid::new(&chunk_box(words, base), inv_max)
+    fn as_box(_: &()) -> Aabb {
+        Aabb::EMPTY
     }
 }
 
 struct ParentMode;
 impl Mode for ParentMode {
     type B = Aabb;
+    const PARENT: bool = true;
     #[inline(always)]
     fn carry(b: &Aabb) -> Aabb {
         *b
     }
     #[inline(always)]
-    fn grid(b: &Aabb, _: &[u64], _: usize, inv_max: f32) -> Grid {
-        Grid::new(b, inv_max)
+    fn as_box(b: &Aabb) -> Aabb {
+        *b
     }
 }
 
