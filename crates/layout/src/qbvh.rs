@@ -273,6 +273,12 @@ fn write_key(keys: &mut [u8], bits: u32, node: usize, k: &[u32; 6]) {
 /// Reads the 12 key coordinates of two sibling nodes `g`, `g + 1`.
 trait KeyReader: Copy + Send + Sync {
     fn pair(&self, keys: &[u8], g: usize) -> [u32; 12];
+    /// The pair as SSE key vectors (see `sse::from_u32`).
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn pair_sse(&self, keys: &[u8], g: usize) -> [std::arch::x86_64::__m128i; 4] {
+        sse::from_u32(&self.pair(keys, g))
+    }
 }
 
 /// bits = 8: one byte per coordinate, the two siblings' keys are 12 consecutive bytes.
@@ -284,6 +290,11 @@ impl KeyReader for Bytes8 {
     fn pair(&self, keys: &[u8], g: usize) -> [u32; 12] {
         let s: &[u8; 12] = keys[6 * g..6 * g + 12].try_into().unwrap();
         s.map(|b| b as u32)
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn pair_sse(&self, keys: &[u8], g: usize) -> [std::arch::x86_64::__m128i; 4] {
+        sse::from_bytes(keys[6 * g..6 * g + 12].try_into().unwrap())
     }
 }
 
@@ -530,6 +541,29 @@ impl Qbvh {
     }
 
     pub fn trace(&self, tris: &[Triangle], rays: &[Ray]) -> TraceStats {
+        // SSE4.1 (pshufb, blendv, ptest) and popcnt (rank) when the CPU has them, detected once;
+        // the portable path (RayBox::hit on dequantized Aabbs) otherwise. Both compute the same
+        // floats, so hits and counters are identical.
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("popcnt")
+            && std::arch::is_x86_feature_detected!("sse4.1")
+        {
+            return match (self.bits == 8, self.frame) {
+                (true, Frame::Chunk) => self.trace_sse::<Bytes8, ChunkMode>(Bytes8, tris, rays),
+                (true, Frame::Parent) => self.trace_sse::<Bytes8, ParentMode>(Bytes8, tris, rays),
+                (false, Frame::Chunk) => {
+                    self.trace_sse::<Packed, ChunkMode>(Packed { bits: self.bits }, tris, rays)
+                }
+                (false, Frame::Parent) => {
+                    self.trace_sse::<Packed, ParentMode>(Packed { bits: self.bits }, tris, rays)
+                }
+            };
+        }
+        self.trace_portable(tris, rays)
+    }
+
+    /// The portable traversal (also used by tests to check the SSE path gives identical results).
+    pub fn trace_portable(&self, tris: &[Triangle], rays: &[Ray]) -> TraceStats {
         match (self.bits == 8, self.frame) {
             (true, Frame::Chunk) => self.trace_as::<Bytes8, ChunkMode>(Bytes8, tris, rays),
             (true, Frame::Parent) => self.trace_as::<Bytes8, ParentMode>(Bytes8, tris, rays),
@@ -548,32 +582,41 @@ impl Qbvh {
         tris: &[Triangle],
         rays: &[Ray],
     ) -> TraceStats {
-        // rank() is popcount; the default x86-64 target has no popcnt instruction, so use it
-        // when the CPU has it (detected once), with the portable fallback otherwise.
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("popcnt")
-            && std::arch::is_x86_feature_detected!("sse4.1")
-        {
-            return bvhlab_trace::trace_with(rays, QStack::<M::B>::new, |stack, ray| {
-                // SAFETY: the features were detected above.
-                unsafe { self.trace_one_popcnt::<K, M>(kr, tris, ray, stack) }
-            });
-        }
-        bvhlab_trace::trace_with(rays, QStack::<M::B>::new, |stack, ray| {
-            self.trace_one::<K, M>(kr, tris, ray, stack)
+        let max_key = (1u32 << self.bits) - 1;
+        bvhlab_trace::trace_with(rays, QStack::<M::C<Aabb>>::new, |stack, ray| {
+            let lanes = Scalar {
+                rb: RayBox::new(ray),
+                max_key,
+                inv_max: 1.0 / max_key as f32,
+            };
+            self.trace_one::<K, M, Scalar>(kr, &lanes, tris, ray, stack)
+        })
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    fn trace_sse<K: KeyReader, M: Mode>(
+        &self,
+        kr: K,
+        tris: &[Triangle],
+        rays: &[Ray],
+    ) -> TraceStats {
+        bvhlab_trace::trace_with(rays, QStack::<M::C<sse::Box2>>::new, |stack, ray| {
+            // SAFETY: popcnt and sse4.1 were detected by the caller.
+            unsafe { self.trace_one_sse::<K, M>(kr, tris, ray, stack) }
         })
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "popcnt,sse4.1")]
-    unsafe fn trace_one_popcnt<K: KeyReader, M: Mode>(
+    unsafe fn trace_one_sse<K: KeyReader, M: Mode>(
         &self,
         kr: K,
         tris: &[Triangle],
         ray: &Ray,
-        stack: &mut QStack<M::B>,
+        stack: &mut QStack<M::C<sse::Box2>>,
     ) -> (Hit, u32, u32) {
-        self.trace_one::<K, M>(kr, tris, ray, stack)
+        let lanes = sse::Sse::new(ray, (1u32 << self.bits) - 1);
+        self.trace_one::<K, M, sse::Sse>(kr, &lanes, tris, ray, stack)
     }
 
     #[inline(always)]
@@ -591,12 +634,13 @@ impl Qbvh {
     /// (the root counts), both child boxes tested, the nearer entry first, popped entries culled
     /// when beyond the closest hit (with the slab test's margin).
     #[inline(always)]
-    fn trace_one<K: KeyReader, M: Mode>(
+    fn trace_one<K: KeyReader, M: Mode, L: Lanes>(
         &self,
         kr: K,
+        lanes: &L,
         tris: &[Triangle],
         ray: &Ray,
-        stack: &mut QStack<M::B>,
+        stack: &mut QStack<M::C<L::B>>,
     ) -> (Hit, u32, u32) {
         let mut best = Hit {
             t: ray.tmax,
@@ -605,8 +649,8 @@ impl Qbvh {
         if self.nodes == 0 || ray.tmax.is_nan() || ray.tmax <= 0.0 {
             return (Hit::NONE, 0, 0);
         }
-        let rb = RayBox::new(ray);
-        if self.world.is_empty() || rb.hit(&self.world, best.t).is_none() {
+        // The implicit root: its exact box, tested as bvh2 tests its root.
+        if self.world.is_empty() || RayBox::new(ray).hit(&self.world, best.t).is_none() {
             return (Hit::NONE, 0, 0);
         }
         let mut steps = 1u32;
@@ -626,23 +670,18 @@ impl Qbvh {
         }
         let wpc = self.chunk_bytes as usize / 8;
         let inner_groups = ((wpc - HEADER_WORDS) * 32 - 1) as u32;
-        let max_key = (1u32 << self.bits) - 1;
-        let inv_max = 1.0 / max_key as f32;
         let limit = self.nodes as u32;
         stack.clear();
         // The sibling pair to test: chunk, slot of the first sibling, frame.
         let mut pc = 0usize;
         let mut ps = 0usize;
-        let mut grid = Grid::new(&self.world, inv_max);
+        let mut grid = lanes.grid_aabb(&self.world);
         // Chunk frame: the grid only changes with the chunk, so it is cached (Kilian 5.2.3: the
         // chunk frame needs no box per stack entry).
         let mut grid_chunk = 0usize;
         loop {
             let g = header(words, pc * wpc).node_offset as usize + ps;
-            let k = kr.pair(keys, g);
-            let (b0, b1) = grid.dequantize_pair(&k, max_key);
-            let h0 = rb.hit(&b0, best.t);
-            let h1 = rb.hit(&b1, best.t);
+            let (h0, h1, b0, b1) = lanes.test_pair(&grid, kr, keys, g, best.t);
             let mut cur = match (h0, h1) {
                 (Some(t0), Some(t1)) => {
                     if t1 < t0 {
@@ -650,21 +689,21 @@ impl Qbvh {
                             chunk: pc as u32,
                             slot: ps as u32,
                             t: t0,
-                            b: M::carry(&b0),
+                            b: M::carry(b0),
                         });
-                        Some((pc, ps + 1, M::carry(&b1)))
+                        Some((pc, ps + 1, M::carry(b1)))
                     } else {
                         stack.push(Entry {
                             chunk: pc as u32,
                             slot: ps as u32 + 1,
                             t: t1,
-                            b: M::carry(&b1),
+                            b: M::carry(b1),
                         });
-                        Some((pc, ps, M::carry(&b0)))
+                        Some((pc, ps, M::carry(b0)))
                     }
                 }
-                (Some(_), None) => Some((pc, ps, M::carry(&b0))),
-                (None, Some(_)) => Some((pc, ps + 1, M::carry(&b1))),
+                (Some(_), None) => Some((pc, ps, M::carry(b0))),
+                (None, Some(_)) => Some((pc, ps + 1, M::carry(b1))),
                 (None, None) => stack.pop_within(best.t * SLAB_ROBUST),
             };
             // Enter nodes until an inner one gives the next pair to test.
@@ -689,15 +728,15 @@ impl Qbvh {
                     pc = c;
                     ps = 2 * (r as usize + 1);
                     if M::PARENT {
-                        grid = Grid::new(&M::as_box(&b), inv_max);
+                        grid = lanes.grid_box(&M::get(b));
                     } else if c != grid_chunk {
-                        grid = Grid::new(&chunk_box(words, base), inv_max);
+                        grid = lanes.grid_aabb(&chunk_box(words, base));
                         grid_chunk = c;
                     }
                 } else {
                     pc = (h.child_chunks + r - inner_groups) as usize;
                     ps = 0;
-                    grid = Grid::new(&chunk_box(words, pc * wpc), inv_max);
+                    grid = lanes.grid_aabb(&chunk_box(words, pc * wpc));
                     grid_chunk = pc;
                 }
                 break;
@@ -902,39 +941,272 @@ impl Qbvh {
 // Traversal helpers.
 // ---------------------------------------------------------------------------------------------
 
-/// Frame mode: what a stack entry carries and where an inner node's in-chunk children get their
-/// frame. Chunk mode carries nothing (the frame is in the chunk header); parent mode carries the
-/// node's dequantized box (Kilian 5.2.3's "extra stack of AABBs").
+/// Frame mode: what a stack entry carries. Chunk mode carries nothing (the frame is in the chunk
+/// header); parent mode carries the node's dequantized box (Kilian 5.2.3's "extra stack of
+/// AABBs").
 trait Mode {
-    type B: Copy + Default + Send;
+    type C<T: Copy + Default + Send>: Copy + Default + Send;
     const PARENT: bool;
-    fn carry(b: &Aabb) -> Self::B;
-    fn as_box(b: &Self::B) -> Aabb;
+    fn carry<T: Copy + Default + Send>(b: T) -> Self::C<T>;
+    fn get<T: Copy + Default + Send>(c: Self::C<T>) -> T;
 }
 
 struct ChunkMode;
 impl Mode for ChunkMode {
-    type B = ();
+    type C<T: Copy + Default + Send> = ();
     const PARENT: bool = false;
     #[inline(always)]
-    fn carry(_: &Aabb) {}
+    fn carry<T: Copy + Default + Send>(_: T) {}
     #[inline(always)]
-    fn as_box(_: &()) -> Aabb {
-        Aabb::EMPTY
+    fn get<T: Copy + Default + Send>(_: ()) -> T {
+        T::default()
     }
 }
 
 struct ParentMode;
 impl Mode for ParentMode {
-    type B = Aabb;
+    type C<T: Copy + Default + Send> = T;
     const PARENT: bool = true;
     #[inline(always)]
-    fn carry(b: &Aabb) -> Aabb {
-        *b
+    fn carry<T: Copy + Default + Send>(b: T) -> T {
+        b
     }
     #[inline(always)]
-    fn as_box(b: &Aabb) -> Aabb {
-        *b
+    fn get<T: Copy + Default + Send>(c: T) -> T {
+        c
+    }
+}
+
+/// How a sibling pair is dequantized and tested against the ray: portable (`Scalar`: `Grid` +
+/// `RayBox::hit` on `Aabb`s) or SSE (`sse::Sse`, the same floats four lanes at a time).
+trait Lanes {
+    type G: Copy;
+    /// A dequantized child box, as carried in parent mode.
+    type B: Copy + Default + Send;
+    fn grid_aabb(&self, frame: &Aabb) -> Self::G;
+    fn grid_box(&self, frame: &Self::B) -> Self::G;
+    /// Entry distances (None = missed) and boxes of the siblings `g`, `g + 1`.
+    fn test_pair<K: KeyReader>(
+        &self,
+        grid: &Self::G,
+        kr: K,
+        keys: &[u8],
+        g: usize,
+        tmax: f32,
+    ) -> (Option<f32>, Option<f32>, Self::B, Self::B);
+}
+
+struct Scalar {
+    rb: RayBox,
+    max_key: u32,
+    inv_max: f32,
+}
+
+impl Lanes for Scalar {
+    type G = Grid;
+    type B = Aabb;
+    #[inline(always)]
+    fn grid_aabb(&self, frame: &Aabb) -> Grid {
+        Grid::new(frame, self.inv_max)
+    }
+    #[inline(always)]
+    fn grid_box(&self, frame: &Aabb) -> Grid {
+        Grid::new(frame, self.inv_max)
+    }
+    #[inline(always)]
+    fn test_pair<K: KeyReader>(
+        &self,
+        grid: &Grid,
+        kr: K,
+        keys: &[u8],
+        g: usize,
+        tmax: f32,
+    ) -> (Option<f32>, Option<f32>, Aabb, Aabb) {
+        let k = kr.pair(keys, g);
+        let (b0, b1) = grid.dequantize_pair(&k, self.max_key);
+        (self.rb.hit(&b0, tmax), self.rb.hit(&b1, tmax), b0, b1)
+    }
+}
+
+/// SSE4.1 version of the pair test. Lane layout of every vector: (x, y, z, x); the duplicated x
+/// lane does not change a min/max reduction. Every lane computes exactly the scalar float
+/// operations of `deq_value`, `Grid::new` and `RayBox::hit` (mulps/addps are the same IEEE
+/// operations, minps/maxps are the same `a < b ? a : b` selections, and the reduction order does
+/// not matter without NaNs, which cannot occur with finite boxes and the finite inverse
+/// direction), so both paths give bit-identical hits, steps and tests.
+#[cfg(target_arch = "x86_64")]
+mod sse {
+    use super::{Aabb, KeyReader, Ray, SLAB_ROBUST};
+    use std::arch::x86_64::*;
+
+    #[derive(Clone, Copy)]
+    pub struct G {
+        lo: __m128,
+        step: __m128,
+        hi: __m128,
+    }
+
+    #[derive(Clone, Copy)]
+    pub struct Box2 {
+        min: __m128,
+        max: __m128,
+    }
+
+    impl Default for Box2 {
+        #[inline(always)]
+        fn default() -> Self {
+            // SAFETY: SSE is baseline on x86_64.
+            unsafe {
+                Box2 {
+                    min: _mm_setzero_ps(),
+                    max: _mm_setzero_ps(),
+                }
+            }
+        }
+    }
+
+    pub struct Sse {
+        o: __m128,
+        inv: __m128,
+        max_key: __m128i,
+        inv_max: __m128,
+    }
+
+    #[inline(always)]
+    unsafe fn xyzx(x: f32, y: f32, z: f32) -> __m128 {
+        _mm_setr_ps(x, y, z, x)
+    }
+
+    impl Sse {
+        #[inline(always)]
+        pub unsafe fn new(ray: &Ray, max_key: u32) -> Sse {
+            let rb = bvhlab_trace::RayBox::new(ray);
+            Sse {
+                o: xyzx(rb.origin.x, rb.origin.y, rb.origin.z),
+                inv: xyzx(rb.inv_dir.x, rb.inv_dir.y, rb.inv_dir.z),
+                max_key: _mm_set1_epi32(max_key as i32),
+                inv_max: _mm_set1_ps(1.0 / max_key as f32),
+            }
+        }
+
+        /// `Grid::new`, four lanes.
+        #[inline(always)]
+        unsafe fn grid(&self, lo: __m128, hi: __m128) -> G {
+            let d = _mm_sub_ps(hi, lo);
+            let abs = _mm_andnot_ps(_mm_set1_ps(-0.0), d);
+            let finite = _mm_cmplt_ps(abs, _mm_set1_ps(f32::INFINITY));
+            let far = _mm_min_ps(
+                _mm_sub_ps(_mm_mul_ps(hi, self.inv_max), _mm_mul_ps(lo, self.inv_max)),
+                _mm_set1_ps(f32::MAX),
+            );
+            let step = _mm_blendv_ps(far, _mm_mul_ps(d, self.inv_max), finite);
+            G { lo, step, hi }
+        }
+
+        /// `deq_value`, four lanes.
+        #[inline(always)]
+        unsafe fn deq(&self, g: &G, k: __m128i) -> __m128 {
+            let v = _mm_add_ps(g.lo, _mm_mul_ps(_mm_cvtepi32_ps(k), g.step));
+            let top = _mm_castsi128_ps(_mm_cmpeq_epi32(k, self.max_key));
+            _mm_blendv_ps(v, g.hi, top)
+        }
+    }
+
+    impl super::Lanes for Sse {
+        type G = G;
+        type B = Box2;
+        #[inline(always)]
+        fn grid_aabb(&self, f: &Aabb) -> G {
+            unsafe {
+                self.grid(
+                    xyzx(f.min.x, f.min.y, f.min.z),
+                    xyzx(f.max.x, f.max.y, f.max.z),
+                )
+            }
+        }
+        #[inline(always)]
+        fn grid_box(&self, f: &Box2) -> G {
+            unsafe { self.grid(f.min, f.max) }
+        }
+        #[inline(always)]
+        fn test_pair<K: KeyReader>(
+            &self,
+            g: &G,
+            kr: K,
+            keys: &[u8],
+            i: usize,
+            tmax: f32,
+        ) -> (Option<f32>, Option<f32>, Box2, Box2) {
+            unsafe {
+                let [k0n, k0x, k1n, k1x] = kr.pair_sse(keys, i);
+                let b0 = Box2 {
+                    min: self.deq(g, k0n),
+                    max: self.deq(g, k0x),
+                };
+                let b1 = Box2 {
+                    min: self.deq(g, k1n),
+                    max: self.deq(g, k1x),
+                };
+                // RayBox::hit for both boxes.
+                let slab = |b: &Box2| {
+                    let t0 = _mm_mul_ps(_mm_sub_ps(b.min, self.o), self.inv);
+                    let t1 = _mm_mul_ps(_mm_sub_ps(b.max, self.o), self.inv);
+                    (_mm_min_ps(t0, t1), _mm_max_ps(t0, t1))
+                };
+                let (n0, f0) = slab(&b0);
+                let (n1, f1) = slab(&b1);
+                // Lanes (box0, box1): near = max(x, y, z, 0), far = min(x, y, z, tmax).
+                let nl = _mm_unpacklo_ps(n0, n1); // x0 x1 y0 y1
+                let nh = _mm_unpackhi_ps(n0, n1); // z0 z1 x0 x1
+                let near = _mm_max_ps(
+                    _mm_max_ps(nl, _mm_movehl_ps(nl, nl)),
+                    _mm_max_ps(nh, _mm_setzero_ps()),
+                );
+                let fl = _mm_unpacklo_ps(f0, f1);
+                let fh = _mm_unpackhi_ps(f0, f1);
+                let far = _mm_mul_ps(
+                    _mm_min_ps(
+                        _mm_min_ps(fl, _mm_movehl_ps(fl, fl)),
+                        _mm_min_ps(fh, _mm_set1_ps(tmax)),
+                    ),
+                    _mm_set1_ps(SLAB_ROBUST),
+                );
+                let m = _mm_movemask_ps(_mm_cmple_ps(near, far));
+                let mut t = [0.0f32; 4];
+                _mm_storeu_ps(t.as_mut_ptr(), near);
+                (
+                    (m & 1 != 0).then_some(t[0]),
+                    (m & 2 != 0).then_some(t[1]),
+                    b0,
+                    b1,
+                )
+            }
+        }
+    }
+
+    /// (min, max, min, max) key vectors of a sibling pair, lanes (x, y, z, x), from the 12
+    /// coordinates in stream order.
+    #[inline(always)]
+    pub unsafe fn from_u32(k: &[u32; 12]) -> [__m128i; 4] {
+        let v =
+            |j: usize| _mm_setr_epi32(k[j] as i32, k[j + 1] as i32, k[j + 2] as i32, k[j] as i32);
+        [v(0), v(3), v(6), v(9)]
+    }
+
+    /// The same from 12 key bytes (bits = 8), with one byte shuffle per vector.
+    #[inline(always)]
+    pub unsafe fn from_bytes(b: &[u8; 12]) -> [__m128i; 4] {
+        let lo = u64::from_le_bytes(b[..8].try_into().unwrap());
+        let hi = u32::from_le_bytes(b[8..].try_into().unwrap());
+        let x = _mm_set_epi64x(hi as i64, lo as i64);
+        let z = -128i8; // pshufb: high bit set = zero byte
+        let sh = |j: i8| _mm_setr_epi8(j, z, z, z, j + 1, z, z, z, j + 2, z, z, z, j, z, z, z);
+        [
+            _mm_shuffle_epi8(x, sh(0)),
+            _mm_shuffle_epi8(x, sh(3)),
+            _mm_shuffle_epi8(x, sh(6)),
+            _mm_shuffle_epi8(x, sh(9)),
+        ]
     }
 }
 

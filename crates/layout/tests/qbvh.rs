@@ -50,6 +50,7 @@ fn every_scene_chunk_size_frame_and_bits_matches_brute_force() {
                         );
                         let l = check(&c, &sp);
                         check_memory(&c, &l, chunk, bits);
+                        same_as_portable(&c, &l);
                         // Quantized boxes contain the exact ones, so eq. 4 can only grow.
                         let q = l.sah_cost(cost);
                         assert!(
@@ -66,6 +67,20 @@ fn every_scene_chunk_size_frame_and_bits_matches_brute_force() {
     }
 }
 
+/// The SIMD traversal (when the CPU has it) computes the same floats as the portable one.
+fn same_as_portable(c: &Case, l: &Layout) {
+    let Layout::Qbvh(q) = l else { unreachable!() };
+    let (a, b) = (
+        q.trace(&c.scene.triangles, &c.rays),
+        q.trace_portable(&c.scene.triangles, &c.rays),
+    );
+    assert_eq!(a.steps, b.steps, "{}", c.spec);
+    assert_eq!(a.intersections, b.intersections);
+    for (x, y) in a.hits.iter().zip(&b.hits) {
+        assert_eq!((x.t.to_bits(), x.prim), (y.t.to_bits(), y.prim));
+    }
+}
+
 #[test]
 fn default_qbvh_matches_brute_force_on_more_rays_and_is_deterministic() {
     for s in SCENES {
@@ -73,6 +88,7 @@ fn default_qbvh_matches_brute_force_on_more_rays_and_is_deterministic() {
         for frame in ["chunk", "parent"] {
             let sp = spec("qbvh", &[("frame", frame)]);
             let a = check(&c, &sp);
+            same_as_portable(&c, &a);
             let b = build(&sp, &c.bvh, &c.scene.triangles).unwrap();
             assert_eq!(a, b, "build is deterministic");
             let (ta, tb) = (
