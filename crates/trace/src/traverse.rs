@@ -48,9 +48,16 @@ pub struct TraceStats {
 /// Möller-Trumbore ray-triangle test (Möller and Trumbore 1997). Returns the hit distance `t`
 /// (not yet range-checked) or NaN/inf-free `None` on a miss. Degenerate triangles (det == 0) and
 /// rays lying in the triangle's plane miss. Comparisons are written so that NaN means "miss".
+///
+/// Evaluated in f64 (the f32 inputs convert exactly; products of two f32 are exact in f64): in f32
+/// the computed t of a ray starting far from a small triangle (a far outlier, a huge scene seen
+/// from its edge) is off by several ulps, more than the slab test's margin (`SLAB_ROBUST`), so a
+/// traversal could cull the box of a triangle whose computed t is the smallest and disagree with
+/// brute force. In f64, t is within about one f32 ulp of the exact distance, inside that margin.
 #[inline(always)]
 pub fn intersect_triangle(origin: Vec3, dir: Vec3, tri: &Triangle) -> Option<f32> {
-    let [v0, v1, v2] = tri.v;
+    let [v0, v1, v2] = tri.v.map(|v| v.as_dvec3());
+    let (origin, dir) = (origin.as_dvec3(), dir.as_dvec3());
     let e1 = v1 - v0;
     let e2 = v2 - v0;
     let p = dir.cross(e2);
@@ -69,7 +76,7 @@ pub fn intersect_triangle(origin: Vec3, dir: Vec3, tri: &Triangle) -> Option<f32
     if !(v >= 0.0 && u + v <= 1.0) {
         return None;
     }
-    Some(e2.dot(q) * inv_det)
+    Some((e2.dot(q) * inv_det) as f32)
 }
 
 /// The shared acceptance rule: `t` in (0, best.t], closer wins, exact ties go to the lower index.
