@@ -242,7 +242,18 @@ pub fn generators() -> Vec<GeneratorInfo> {
 /// `spec` is the part after `gen:`, e.g. `sphere:n=10000`.
 pub fn generate(spec: &str) -> Result<Scene, LoadError> {
     let (g, values) = parse(spec)?;
-    Ok(Scene::from_triangles((g.build)(&values)))
+    let scene = Scene::from_triangles((g.build)(&values));
+    // Same rule as the OBJ loader: a scene with nothing finite left is an error, not an empty scene.
+    if scene.triangles.is_empty() {
+        return Err(spec_err(
+            spec,
+            format!(
+                "no triangles with finite coordinates ({} non-finite dropped)",
+                scene.dropped_triangles
+            ),
+        ));
+    }
+    Ok(scene)
 }
 
 /// `NAME:k=v,...` with every parameter (defaults filled in), keys sorted and values normalised,

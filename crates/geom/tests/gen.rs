@@ -353,7 +353,9 @@ fn stress_scenes_have_their_property() {
         );
     }
     // nonfinite: exactly `bad` dropped, the rest kept, every kind present.
-    for (n, bad) in [(2000u64, 200u64), (10, 10), (10, 0), (7, 3)] {
+    let all_bad = generate("nonfinite:n=10,bad=10").unwrap_err();
+    assert!(all_bad.reason.contains("no triangles with finite coordinates"), "{all_bad}");
+    for (n, bad) in [(2000u64, 200u64), (10, 9), (10, 0), (7, 3)] {
         let nf = g(&format!("nonfinite:n={n},bad={bad}"));
         assert_eq!(nf.dropped_triangles, bad, "n={n} bad={bad}");
         assert_eq!(nf.triangles.len() as u64, n - bad);
