@@ -22,7 +22,8 @@ pub const BUILD_VERSION: u32 = 2;
 pub const COMPACT_VERSION: u32 = 1;
 pub const OPTIMIZE_VERSION: u32 = 1;
 /// 2: traversal keeps a popped node whose entry equals the best t within the slab margin (ties).
-/// 3: ray-triangle t in f64 (far rays could disagree with brute force in f32).
+/// 3: ray-triangle t in f64 (far rays could disagree with brute force in f32); axis-parallel rays
+///    on a box plane are inside the slab (were culled).
 pub const MEASURE_VERSION: u32 = 3;
 pub const FOCUS_VERSION: u32 = 1;
 
