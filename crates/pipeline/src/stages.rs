@@ -25,7 +25,9 @@ pub const COMPACT_VERSION: u32 = 1;
 pub const OPTIMIZE_VERSION: u32 = 1;
 /// 2: traversal keeps a popped node whose entry equals the best t within the slab margin (ties).
 /// 3: optional layout input (its own traversal, bvh2 anchor timed alternately, extra hits/tests).
-pub const MEASURE_VERSION: u32 = 3;
+/// 4: ray-triangle t in f64 (far rays could disagree with brute force in f32); axis-parallel rays
+///    on a box plane are inside the slab (were culled).
+pub const MEASURE_VERSION: u32 = 4;
 pub const FOCUS_VERSION: u32 = 1;
 pub const LAYOUT_VERSION: u32 = 1;
 
