@@ -241,9 +241,15 @@ fn split_node(
             side[a][0] = allow[a][0] && lo[a] <= cd[a] + margin;
             side[a][1] = allow[a][1] && hi[a] >= cd[a] - margin;
         }
-        let cand: Vec<usize> = (0..8)
-            .filter(|&k| side[0][k & 1] && side[1][k >> 1 & 1] && side[2][k >> 2 & 1])
-            .collect();
+        let mut cand = [0usize; 8];
+        let mut nc = 0;
+        for k in 0..8 {
+            if side[0][k & 1] && side[1][k >> 1 & 1] && side[2][k >> 2 & 1] {
+                cand[nc] = k;
+                nc += 1;
+            }
+        }
+        let cand = &cand[..nc];
         if cand.len() == 1 {
             // The triangle touches the parent and lies on one side of every centre plane (within
             // the margin): it touches that child. No separating-axis test needed.
@@ -252,7 +258,7 @@ fn split_node(
         }
         let v = tris[t as usize].v.map(dv);
         let mut any = false;
-        for &k in &cand {
+        for &k in cand {
             if tri_box_overlap(&v, boxes[k].0, boxes[k].1) {
                 lists[k].push(t);
                 any = true;
@@ -261,7 +267,7 @@ fn split_node(
         if !any {
             // Touches the parent only within rounding of the margin: keep it conservatively in
             // every candidate (never drop a reference).
-            for &k in &cand {
+            for &k in cand {
                 lists[k].push(t);
             }
         }
