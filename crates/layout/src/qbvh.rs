@@ -327,9 +327,27 @@ impl Packed {
 impl KeyReader for Packed {
     #[inline(always)]
     fn pair(&self, keys: &[u8], g: usize) -> [u32; 12] {
+        // Three coordinates (3 * bits <= 48 bits) plus a shift <= 7 fit one unaligned u64
+        // window: four window reads per pair; the stream's last bytes are read coordinate by
+        // coordinate.
         let b = self.bits as usize;
-        let p0 = 6 * g * b;
-        std::array::from_fn(|c| self.get(keys, p0 + c * b))
+        let mask = (1u64 << b) - 1;
+        let mut out = [0u32; 12];
+        for h in 0..4 {
+            let p = (6 * g + 3 * h) * b;
+            let byte = p >> 3;
+            if byte + 8 <= keys.len() {
+                let w = u64::from_le_bytes(keys[byte..byte + 8].try_into().unwrap()) >> (p & 7);
+                out[3 * h] = (w & mask) as u32;
+                out[3 * h + 1] = (w >> b & mask) as u32;
+                out[3 * h + 2] = (w >> (2 * b) & mask) as u32;
+            } else {
+                for c in 0..3 {
+                    out[3 * h + c] = self.get(keys, p + c * b);
+                }
+            }
+        }
+        out
     }
 }
 
@@ -551,11 +569,16 @@ impl Qbvh {
             return match (self.bits == 8, self.frame) {
                 (true, Frame::Chunk) => self.trace_sse::<Bytes8, ChunkMode>(Bytes8, tris, rays),
                 (true, Frame::Parent) => self.trace_sse::<Bytes8, ParentMode>(Bytes8, tris, rays),
-                (false, Frame::Chunk) => {
-                    self.trace_sse::<Packed, ChunkMode>(Packed { bits: self.bits }, tris, rays)
-                }
-                (false, Frame::Parent) => {
-                    self.trace_sse::<Packed, ParentMode>(Packed { bits: self.bits }, tris, rays)
+                (false, frame) => {
+                    let t = sse::PackedTables::new(self.bits);
+                    let kr = sse::PackedSse {
+                        bits: self.bits,
+                        t: &t,
+                    };
+                    match frame {
+                        Frame::Chunk => self.trace_sse::<_, ChunkMode>(kr, tris, rays),
+                        Frame::Parent => self.trace_sse::<_, ParentMode>(kr, tris, rays),
+                    }
                 }
             };
         }
@@ -1033,7 +1056,8 @@ impl Lanes for Scalar {
 /// operations of `deq_value`, `Grid::new` and `RayBox::hit` (mulps/addps are the same IEEE
 /// operations, minps/maxps are the same `a < b ? a : b` selections, and the reduction order does
 /// not matter without NaNs, which cannot occur with finite boxes and the finite inverse
-/// direction), so both paths give bit-identical hits, steps and tests.
+/// direction), so both paths give bit-identical hits, steps and tests. Rays with a zero direction
+/// component call `RayBox::hit` itself (it tests such an axis by the origin's position).
 #[cfg(target_arch = "x86_64")]
 mod sse {
     use super::{Aabb, KeyReader, Ray, SLAB_ROBUST};
@@ -1052,6 +1076,19 @@ mod sse {
         max: __m128,
     }
 
+    impl Box2 {
+        #[inline(always)]
+        unsafe fn aabb(&self) -> Aabb {
+            let (mut a, mut b) = ([0.0f32; 4], [0.0f32; 4]);
+            _mm_storeu_ps(a.as_mut_ptr(), self.min);
+            _mm_storeu_ps(b.as_mut_ptr(), self.max);
+            Aabb::new(
+                bvhlab_geom::Vec3::new(a[0], a[1], a[2]),
+                bvhlab_geom::Vec3::new(b[0], b[1], b[2]),
+            )
+        }
+    }
+
     impl Default for Box2 {
         #[inline(always)]
         fn default() -> Self {
@@ -1066,6 +1103,10 @@ mod sse {
     }
 
     pub struct Sse {
+        /// A direction component is zero: `RayBox::hit` treats that axis specially (by the
+        /// origin's position), so such rays use it on the dequantized boxes.
+        parallel: bool,
+        rb: bvhlab_trace::RayBox,
         o: __m128,
         inv: __m128,
         max_key: __m128i,
@@ -1082,10 +1123,12 @@ mod sse {
         pub unsafe fn new(ray: &Ray, max_key: u32) -> Sse {
             let rb = bvhlab_trace::RayBox::new(ray);
             Sse {
+                parallel: ray.dir.x == 0.0 || ray.dir.y == 0.0 || ray.dir.z == 0.0,
                 o: xyzx(rb.origin.x, rb.origin.y, rb.origin.z),
                 inv: xyzx(rb.inv_dir.x, rb.inv_dir.y, rb.inv_dir.z),
                 max_key: _mm_set1_epi32(max_key as i32),
                 inv_max: _mm_set1_ps(1.0 / max_key as f32),
+                rb,
             }
         }
 
@@ -1147,6 +1190,10 @@ mod sse {
                     min: self.deq(g, k1n),
                     max: self.deq(g, k1x),
                 };
+                if self.parallel {
+                    let (a0, a1) = (b0.aabb(), b1.aabb());
+                    return (self.rb.hit(&a0, tmax), self.rb.hit(&a1, tmax), b0, b1);
+                }
                 // RayBox::hit for both boxes.
                 let slab = |b: &Box2| {
                     let t0 = _mm_mul_ps(_mm_sub_ps(b.min, self.o), self.inv);
@@ -1191,6 +1238,99 @@ mod sse {
         let v =
             |j: usize| _mm_setr_epi32(k[j] as i32, k[j + 1] as i32, k[j + 2] as i32, k[j] as i32);
         [v(0), v(3), v(6), v(9)]
+    }
+
+    /// Byte shuffles and per-lane multipliers that turn an unaligned u64 window of the key stream
+    /// into one key vector (lanes x, y, z, x of three consecutive coordinates): lane j takes the 3
+    /// bytes holding its coordinate, `* 2^(7 - r)` then `>> 7` shifts each lane right by its own
+    /// residual r (SSE4.1 has no per-lane variable shift), then the mask. Indexed by [half of a
+    /// byte the pair starts at (odd bits only)][vector h = coordinates 3h..3h + 3 of the pair].
+    pub struct PackedTables {
+        shuf: [[__m128i; 4]; 2],
+        mul: [[__m128i; 4]; 2],
+        mask: __m128i,
+    }
+
+    impl PackedTables {
+        pub fn new(bits: u32) -> PackedTables {
+            let b = bits as usize;
+            let mut shuf = [[[0x80u8; 16]; 4]; 2];
+            let mut mul = [[[0u32; 4]; 4]; 2];
+            for (par, (sh, mu)) in shuf.iter_mut().zip(mul.iter_mut()).enumerate() {
+                for h in 0..4 {
+                    let p = 4 * par + 3 * h * b; // window starts at byte p >> 3
+                    for (j, c) in [0usize, 1, 2, 0].into_iter().enumerate() {
+                        let off = (p & 7) + c * b;
+                        for q in 0..3 {
+                            sh[h][4 * j + q] = ((off >> 3) + q) as u8;
+                        }
+                        mu[h][j] = 1 << (7 - (off & 7));
+                    }
+                }
+            }
+            // SAFETY: plain SSE2 loads of local arrays.
+            unsafe {
+                let ld = |a: &[u8; 16]| _mm_loadu_si128(a.as_ptr() as *const __m128i);
+                let ldm = |a: &[u32; 4]| _mm_loadu_si128(a.as_ptr() as *const __m128i);
+                PackedTables {
+                    shuf: [0, 1].map(|i| std::array::from_fn(|h| ld(&shuf[i][h]))),
+                    mul: [0, 1].map(|i| std::array::from_fn(|h| ldm(&mul[i][h]))),
+                    mask: _mm_set1_epi32(((1u32 << bits) - 1) as i32),
+                }
+            }
+        }
+    }
+
+    /// `Packed` with the SSE key path.
+    #[derive(Clone, Copy)]
+    pub struct PackedSse<'a> {
+        pub bits: u32,
+        pub t: &'a PackedTables,
+    }
+
+    // SAFETY: the tables are plain data, only read.
+    unsafe impl Send for PackedTables {}
+    unsafe impl Sync for PackedTables {}
+
+    impl KeyReader for PackedSse<'_> {
+        #[inline(always)]
+        fn pair(&self, keys: &[u8], g: usize) -> [u32; 12] {
+            super::Packed { bits: self.bits }.pair(keys, g)
+        }
+        #[inline(always)]
+        unsafe fn pair_sse(&self, keys: &[u8], g: usize) -> [__m128i; 4] {
+            let b = self.bits as usize;
+            let p0 = 6 * g * b; // g is even: p0 % 8 is 0 or 4
+            let par = (p0 >> 2) & 1;
+            let t = self.t;
+            #[inline(always)]
+            unsafe fn one(
+                t: &PackedTables,
+                keys: &[u8],
+                p: usize,
+                par: usize,
+                h: usize,
+            ) -> __m128i {
+                let byte = p >> 3;
+                let w = if byte + 8 <= keys.len() {
+                    u64::from_le_bytes(keys[byte..byte + 8].try_into().unwrap())
+                } else {
+                    let mut a = [0u8; 8];
+                    let tail = &keys[byte.min(keys.len())..];
+                    a[..tail.len()].copy_from_slice(tail);
+                    u64::from_le_bytes(a)
+                };
+                let v = _mm_shuffle_epi8(_mm_cvtsi64_si128(w as i64), t.shuf[par][h]);
+                let v = _mm_srli_epi32(_mm_mullo_epi32(v, t.mul[par][h]), 7);
+                _mm_and_si128(v, t.mask)
+            }
+            [
+                one(t, keys, p0, par, 0),
+                one(t, keys, p0 + 3 * b, par, 1),
+                one(t, keys, p0 + 6 * b, par, 2),
+                one(t, keys, p0 + 9 * b, par, 3),
+            ]
+        }
     }
 
     /// The same from 12 key bytes (bits = 8), with one byte shuffle per vector.

@@ -276,3 +276,50 @@ fn bad_parameters_are_rejected() {
     }
     assert!(LayoutSpec::parse("qbvh", &raw(&[("chunk_bytes", "48"), ("bits", "16")])).is_ok());
 }
+
+/// Axis-parallel rays whose origins lie on triangle (hence box) planes: `RayBox::hit` tests a
+/// zero-direction axis by the origin's position; the SIMD pair test must agree.
+#[test]
+fn axis_parallel_rays_on_box_planes() {
+    let c = case("gen:city:blocks=6", 1, 0, 1);
+    let tris = &c.scene.triangles;
+    let b = c.scene.bounds();
+    let mut coords: Vec<Vec3> = tris.iter().flat_map(|t| t.v).collect();
+    coords.sort_by(|a, b| a.to_array().partial_cmp(&b.to_array()).unwrap());
+    coords.dedup();
+    let mut rays = Vec::new();
+    for (i, v) in coords.iter().step_by(7).take(300).enumerate() {
+        let d = [Vec3::X, Vec3::Y, Vec3::Z][i % 3] * if i % 2 == 0 { 1.0 } else { -1.0 };
+        // Start outside the scene along the axis, keep the other two coordinates on the vertex.
+        let back = (b.max - b.min).length() + 1.0;
+        rays.push(Ray {
+            origin: *v - d * back,
+            dir: d,
+            tmax: 3.0 * back,
+        });
+        rays.push(Ray {
+            origin: *v,
+            dir: d,
+            tmax: back,
+        });
+    }
+    let want = brute_force(tris, &rays);
+    for frame in ["chunk", "parent"] {
+        for bits in ["8", "3"] {
+            let sp = spec("qbvh", &[("frame", frame), ("bits", bits)]);
+            let l = build(&sp, &c.bvh, tris).unwrap();
+            let got = l.trace(tris, &rays);
+            for (i, (g, w)) in got.hits.iter().zip(&want).enumerate() {
+                assert!(same_hit(g, w), "{frame} {bits} ray {i}: {g:?} vs {w:?}");
+            }
+            let cc = Case {
+                spec: c.spec.clone(),
+                scene: c.scene.clone(),
+                bvh: c.bvh.clone(),
+                rays: rays.clone(),
+                want: want.clone(),
+            };
+            same_as_portable(&cc, &l);
+        }
+    }
+}
