@@ -546,7 +546,7 @@ pub fn trace_one<T: Topo>(
         );
         let near = mx(mx(x.0, y.0), mx(z.0, 0.0));
         let far = mn(mn(x.1, y.1), mn(z.1, best.t)) * SLAB_ROBUST;
-        if !(near <= far) {
+        if near.partial_cmp(&far).is_none_or(|o| o.is_gt()) {
             return (Hit::NONE, 0, 0);
         }
         near
@@ -633,7 +633,7 @@ pub fn sah_topo<T: Topo>(topo: &T, world: &Aabb, cost: CostParams) -> f64 {
         return 0.0;
     }
     let root_sa = world.area_f64();
-    let degenerate = !(root_sa > 0.0);
+    let degenerate = root_sa.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater);
     let ratio = |b: &Aabb| {
         if degenerate {
             1.0

@@ -81,7 +81,7 @@ impl Config {
     pub fn check(&self, name: &str) -> Result<(), String> {
         self.base.check(name)?;
         let b = self.chunk_bytes;
-        if b < 16 || b % 8 != 0 || b > MAX_CHUNK_BYTES {
+        if b < 16 || !b.is_multiple_of(8) || b > MAX_CHUNK_BYTES {
             return Err(format!(
                 "layout `{name}`: chunk_bytes must be a multiple of 8 in 16..={MAX_CHUNK_BYTES} (16, 32, 64, 128 in Kilian 4.2.2.5; got {b})"
             ));
