@@ -10,7 +10,7 @@ use bvhlab_layout::{build, Layout};
 use bvhlab_trace::{brute_force, Ray};
 use common::*;
 
-const RAYS: usize = 400;
+const RAYS: usize = 300;
 
 fn memory_formulas(l: &Layout) {
     let m = l.memory();
@@ -66,13 +66,16 @@ fn check_pair(c: &Case, kv: &[(&str, &str)], chunk: &str, fill: &str) {
     kv1.push(("fill", fill));
     let l = check(c, &spec("octree1", &kv1));
     memory_formulas(&l);
-    let u = l
-        .uncompressed(&c.bvh, &c.scene.triangles)
-        .expect("octree1 has an uncompressed octree");
-    assert_eq!(
-        u, o,
-        "uncompressed() is the octree with the same parameters"
-    );
+    if chunk == "16" {
+        // (Rebuilds the octree: once per scene and parameter set is enough.)
+        let u = l
+            .uncompressed(&c.bvh, &c.scene.triangles)
+            .expect("octree1 has an uncompressed octree");
+        assert_eq!(
+            u, o,
+            "uncompressed() is the octree with the same parameters"
+        );
+    }
     let (mo, ml) = (o.memory(), l.memory());
     assert_eq!((mo.nodes, mo.prim_refs), (ml.nodes, ml.prim_refs));
     let a = o.trace(&c.scene.triangles, &c.rays);
