@@ -58,8 +58,8 @@ fn main() {
     }
     println!("# leaf={leaf} rays={n_rays}; diff = rays whose closest hit differs from brute force");
     println!(
-        "{:<24} {:<56} {:>6} {:>9} {:>8} {:>8} {}",
-        "scene", "layout", "diff", "hits", "build_s", "trace_s", "validate"
+        "{:<24} {:<56} {:>6} {:>9} {:>8} {:>8} validate",
+        "scene", "layout", "diff", "hits", "build_s", "trace_s"
     );
     let mut total_diff = 0usize;
     let mut failures = 0usize;

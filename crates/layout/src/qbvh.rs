@@ -76,7 +76,7 @@ impl Config {
             return Err(format!("layout `qbvh`: bits must be in 1..=16, got {bits}"));
         }
         let chunk_bytes: u32 = spec.get("chunk_bytes")?;
-        if chunk_bytes % 8 != 0 || chunk_bytes < 48 || chunk_bytes > MAX_CHUNK_BYTES {
+        if !chunk_bytes.is_multiple_of(8) || !(48..=MAX_CHUNK_BYTES).contains(&chunk_bytes) {
             return Err(format!(
                 "layout `qbvh`: chunk_bytes must be a multiple of 8 in 48..={MAX_CHUNK_BYTES} \
                  (40-byte header + at least one 64-bit bit-field word), got {chunk_bytes}"
@@ -778,7 +778,11 @@ impl Qbvh {
             return Ok(());
         }
         let wpc = self.chunk_bytes as usize / 8;
-        if self.bits == 0 || self.bits > 16 || wpc <= HEADER_WORDS || self.words.len() % wpc != 0 {
+        if self.bits == 0
+            || self.bits > 16
+            || wpc <= HEADER_WORDS
+            || !self.words.len().is_multiple_of(wpc)
+        {
             return Err("qbvh: bad parameters or chunk array length".into());
         }
         let nchunks = self.words.len() / wpc;
@@ -895,7 +899,7 @@ impl Qbvh {
         }
         // Thesis eq. 4 with the boxes traversal tests (same normalisation as bvh metrics).
         let root_sa = self.world.area_f64();
-        let degenerate = !(root_sa > 0.0);
+        let degenerate = root_sa.is_nan() || root_sa <= 0.0;
         let ratio = |sa: f64| if degenerate { 1.0 } else { sa / root_sa };
         let (mut inner, mut leaf) = (0.0f64, 0.0f64);
         let r = self.walk(|_, b, range| match range {
