@@ -38,7 +38,7 @@ fn every_scene_chunk_size_frame_and_bits_matches_brute_force() {
     let cost = CostParams::default();
     for s in SCENES {
         for leaf in [1, 2] {
-            let c = case(s, leaf, 250, 11 + leaf as u64);
+            let c = case(s, leaf, 150, 11 + leaf as u64);
             let exact = bvhlab_bvh::metrics(&c.bvh, cost).sah_cost;
             for chunk in [48u64, 64, 128, 256] {
                 for frame in ["chunk", "parent"] {
@@ -84,7 +84,7 @@ fn same_as_portable(c: &Case, l: &Layout) {
 #[test]
 fn default_qbvh_matches_brute_force_on_more_rays_and_is_deterministic() {
     for s in SCENES {
-        let c = case(s, 2, 3000, 5);
+        let c = case(s, 2, 2000, 5);
         for frame in ["chunk", "parent"] {
             let sp = spec("qbvh", &[("frame", frame)]);
             let a = check(&c, &sp);
