@@ -27,6 +27,17 @@
 //!
 //! Leaf data (not topology): `offsets` (u32 per leaf in bit order, plus an end entry; the leaf's
 //! primitives are `prims[offsets[l]..offsets[l + 1]]`) and `prims` (u32 per triangle).
+//!
+//! Quantization must be conservative (exact closest hits): Kilian's floor/ceil (alg. 3/4) is not
+//! under float rounding (and alg. 4 returns `quantKey`, a typo). One dequantization,
+//! [`deq_value`] (key 0 = frame min and the top key = frame max exactly), is used by build,
+//! traversal, validation and SAH; the build picks the largest min key / smallest max key whose
+//! *dequantized* value still contains the exact box (estimate, then check and step).
+//!
+//! Traversal: iterative with a spilling stack, same semantics as `bvhlab_trace::trace` (steps =
+//! nodes entered, near entry first, culling with `SLAB_ROBUST`). On x86-64 with popcnt and SSE4.1
+//! (detected at run time) a sibling pair is dequantized and slab-tested four lanes at a time with
+//! the very same float operations as the portable path (`Grid` + `RayBox::hit`).
 use crate::chunks::chunk_bfs;
 use crate::{LayoutSpec, Memory};
 use bvhlab_bvh::{Bvh, CostParams};
