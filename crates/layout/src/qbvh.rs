@@ -30,7 +30,7 @@
 //!
 //! Quantization must be conservative (exact closest hits): Kilian's floor/ceil (alg. 3/4) is not
 //! under float rounding (and alg. 4 returns `quantKey`, a typo). One dequantization,
-//! [`deq_value`] (key 0 = frame min and the top key = frame max exactly), is used by build,
+//! `deq_value` (key 0 = frame min and the top key = frame max exactly), is used by build,
 //! traversal, validation and SAH; the build picks the largest min key / smallest max key whose
 //! *dequantized* value still contains the exact box (estimate, then check and step).
 //!
