@@ -63,6 +63,12 @@ fn octree_cfg(kv: &[(String, String)]) -> octree::Config {
             "prim_threshold" => c.prim_threshold = v.parse().unwrap(),
             "mult_threshold" => c.mult_threshold = v.parse().unwrap(),
             "max_depth" => c.max_depth = v.parse().unwrap(),
+            "overlap" => {
+                c.overlap = match v.as_str() {
+                    "aabb" => octree::Overlap::Aabb,
+                    _ => octree::Overlap::Sat,
+                }
+            }
             _ => panic!("unknown octree parameter {k}"),
         }
     }

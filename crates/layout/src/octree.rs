@@ -39,6 +39,7 @@ use serde::{Deserialize, Serialize};
 pub const PARAMS: &[(&str, &str)] = &[
     ("max_depth", "24"),
     ("mult_threshold", "2.0"),
+    ("overlap", "sat"),
     ("prim_threshold", "20"),
 ];
 
@@ -55,6 +56,27 @@ pub struct Config {
     pub prim_threshold: u32,
     pub mult_threshold: f64,
     pub max_depth: u32,
+    /// Triangle/octant test: exact separating axes (`sat`, default) or the triangle's bounding
+    /// box (`aabb`, the simple conservative test; more references), both with the margin.
+    pub overlap: Overlap,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Overlap {
+    Sat,
+    Aabb,
+}
+
+/// Parses the `overlap` parameter.
+pub fn parse_overlap(spec: &LayoutSpec) -> Result<Overlap, String> {
+    match spec.get::<String>("overlap")?.as_str() {
+        "sat" => Ok(Overlap::Sat),
+        "aabb" => Ok(Overlap::Aabb),
+        o => Err(format!(
+            "layout `{}`: overlap must be `sat` or `aabb` (got `{o}`)",
+            spec.name
+        )),
+    }
 }
 
 impl Default for Config {
@@ -63,6 +85,7 @@ impl Default for Config {
             prim_threshold: 20,
             mult_threshold: 2.0,
             max_depth: 24,
+            overlap: Overlap::Sat,
         }
     }
 }
@@ -73,6 +96,7 @@ impl Config {
             prim_threshold: spec.get("prim_threshold")?,
             mult_threshold: spec.get("mult_threshold")?,
             max_depth: spec.get("max_depth")?,
+            overlap: parse_overlap(spec)?,
         };
         cfg.check(&spec.name)?;
         Ok(cfg)
@@ -250,6 +274,14 @@ fn split_node(
             }
         }
         let cand = &cand[..nc];
+        if cand.len() == 1 || cfg.overlap == Overlap::Aabb {
+            // Aabb: the side flags are exactly "bounds overlap the grown child box" (the bounds
+            // already overlap the grown parent).
+            for &k in cand {
+                lists[k].push(t);
+            }
+            continue;
+        }
         if cand.len() == 1 {
             // The triangle touches the parent and lies on one side of every centre plane (within
             // the margin): it touches that child. No separating-axis test needed.

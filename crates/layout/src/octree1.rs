@@ -31,6 +31,7 @@ pub const PARAMS: &[(&str, &str)] = &[
     ("fill", "bfs"),
     ("max_depth", "24"),
     ("mult_threshold", "2.0"),
+    ("overlap", "sat"),
     ("prim_threshold", "20"),
 ];
 
@@ -58,6 +59,7 @@ impl Config {
             prim_threshold: spec.get("prim_threshold")?,
             mult_threshold: spec.get("mult_threshold")?,
             max_depth: spec.get("max_depth")?,
+            overlap: octree::parse_overlap(spec)?,
         };
         let fill = match spec.get::<String>("fill")?.as_str() {
             "bfs" => Fill::Bfs,

@@ -111,6 +111,7 @@ fn construction_parameters_match_brute_force() {
             &[("mult_threshold", "1.3")],
             &[("mult_threshold", "2.4"), ("prim_threshold", "4")],
             &[("prim_threshold", "1"), ("max_depth", "6")],
+            &[("overlap", "aabb"), ("prim_threshold", "4")],
         ] {
             check_pair(&c, kv, "16", "bfs");
             check_pair(&c, kv, "24", "dense");
@@ -429,6 +430,7 @@ fn deterministic_bytes_and_bad_parameters() {
         &[("fill", "sparse")],
         &[("mult_threshold", "0.5")],
         &[("max_depth", "99")],
+        &[("overlap", "exact")],
         &[("prim_threshold", "-1")],
     ] {
         assert!(LayoutSpec::parse("octree1", &raw(kv)).is_err(), "{kv:?}");
@@ -436,6 +438,28 @@ fn deterministic_bytes_and_bad_parameters() {
     let d = LayoutSpec::parse("octree1", &raw(&[])).unwrap();
     assert_eq!(
         d.params_string(),
-        "chunk_bytes=16,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20"
+        "chunk_bytes=16,fill=bfs,max_depth=24,mult_threshold=2.0,overlap=sat,prim_threshold=20"
     );
+}
+
+#[test]
+fn sat_overlap_is_tighter_than_bounding_boxes() {
+    // Long thin diagonal triangles (hairball): the bounding-box test puts many of them into
+    // octants they never touch.
+    let c = case("gen:hairball:n=500", 2, 10, 9);
+    let m = |kv: &[(&str, &str)]| {
+        build(&spec("octree", kv), &c.bvh, &c.scene.triangles)
+            .unwrap()
+            .memory()
+    };
+    // mult 8 never stops a split: both trees are full to depth 2, only the references differ.
+    let kv = [
+        ("prim_threshold", "4"),
+        ("mult_threshold", "8"),
+        ("max_depth", "2"),
+    ];
+    let sat = m(&kv);
+    let aabb = m(&[kv[0], kv[1], kv[2], ("overlap", "aabb")]);
+    assert_eq!((sat.nodes, aabb.nodes), (73, 73));
+    assert!(sat.prim_refs < aabb.prim_refs, "sat {sat:?} aabb {aabb:?}");
 }
