@@ -200,7 +200,8 @@ fn methods_lists_builders_and_encoders() {
     let s = String::from_utf8_lossy(&o.stdout);
     for n in [
         "binned-sah", "lbvh", "aac", "ploc", "radius=[10]", "morton", "emc64-var", "bits=[auto]", "grid_bits", "bonsai",
-        "incremental", "ibo", "measure=[comb]", "kensler-sa",
+        "incremental", "ibo", "measure=[comb]", "kensler-sa", "layouts", "qbvh", "octree1", "chunk_bytes=[64]",
+        "frame=[chunk]", "fill=[bfs]", "max_slowdown=[1.25]",
     ] {
         assert!(s.contains(n), "`{n}` missing in:\n{s}");
     }
@@ -271,4 +272,39 @@ fn eval_optimize_ibo_then_collapse() {
     assert_input_error(&bad(&["--optimize", "ibo", "--set", "measure=best"]), &["measure", "comb"]);
     assert_input_error(&bad(&["--optimize", "ibo", "--set", "pr=20"]), &["pr=20", "pt=10"]);
     assert_input_error(&bad(&["--set", "pt=3"]), &["pt", "optimizer parameter"]);
+}
+
+#[test]
+fn eval_layout_fields_in_json_and_human_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = ["eval", "--scene", "gen:sphere:n=2000", "--build", "binned-sah", "--layout", "bvh2", "--repeat", "2", "--cache", "c"];
+    let with_rays = [&base[..], &["--rays", "random:1000", "--json"]].concat();
+    let o = bvhlab(&with_rays, dir.path());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v = stdout_json(&o);
+    for k in [
+        "topology_bytes", "total_bytes", "chunks", "chunk_fill", "extra_box_hits_per_ray", "extra_tests_per_ray",
+        "slowdown", "bvh2_trace_seconds", "topology_bits_per_node", "layout_seconds", "peak_build_bytes",
+    ] {
+        assert!(v[k].is_number(), "{k}: {v}");
+    }
+    assert_eq!(v["layout"], "bvh2");
+    let nodes = v["inner_nodes"].as_u64().unwrap() + v["leaves"].as_u64().unwrap();
+    assert_eq!(v["topology_bytes"].as_u64().unwrap(), 32 * nodes);
+    assert_eq!(v["extra_tests_per_ray"], 0.0);
+    assert!(v["keys"]["layout"].is_string());
+    // Without rays: memory fields, no accuracy or timing fields; the layout node is reused.
+    let o = bvhlab(&[&base[..], &["--json"]].concat(), dir.path());
+    let w = stdout_json(&o);
+    assert_eq!(w["computed"], 0);
+    assert_eq!(w["topology_bytes"], v["topology_bytes"]);
+    assert!(w["extra_box_hits_per_ray"].is_null() && w["slowdown"].is_null());
+    // Human output: a layout block.
+    let o = bvhlab(&with_rays[..with_rays.len() - 1], dir.path());
+    let s = String::from_utf8_lossy(&o.stdout);
+    assert!(s.contains("\nlayout: bvh2") && s.contains("\n  topology_bytes: ") && s.contains("\n  slowdown: "), "{s}");
+    // A bad spec is an input error naming the parameter.
+    let o = bvhlab(&["eval", "--scene", "gen:sphere:n=100", "--build", "binned-sah", "--layout", "qbvh:frame=sideways", "--no-cache"], dir.path());
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("frame"));
 }

@@ -601,13 +601,21 @@ max = [16.0, 4.0, 16.0]
         let layouts: Vec<Option<&str>> = e.points.iter().map(|p| p.layout.as_deref()).collect();
         assert_eq!(
             layouts,
-            [None, Some("bvh2"), Some("qbvh:chunk_bytes=128,frame=parent")]
+            [
+                None,
+                Some("bvh2"),
+                Some("qbvh:chunk_bytes=128,frame=parent")
+            ]
         );
         assert!(e.points.iter().all(|p| !p.params.contains_key("layout")));
-        assert_eq!(e.chains()[2].layout.as_deref(), Some("qbvh:chunk_bytes=128,frame=parent"));
+        assert_eq!(
+            e.chains()[2].layout.as_deref(),
+            Some("qbvh:chunk_bytes=128,frame=parent")
+        );
         for (bad, needle) in [
             ("layout = \"zip\"\n", "zip"),
             ("layout = \"qbvh:wat=1\"\n", "wat"),
+            ("layout = \"qbvh:frame=sideways\"\n", "frame"),
             ("layout = \"auto:max_slowdown=-1\"\n", "max_slowdown"),
         ] {
             let e = parse(&format!("{head}{bad}")).unwrap_err();

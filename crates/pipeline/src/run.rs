@@ -296,14 +296,14 @@ impl Runner {
                             param("candidates", auto_candidates().join(";")),
                         ]
                         .into();
-                        (p, vec![("load", load.key), (final_node.stage, final_node.key)])
+                        (
+                            p,
+                            vec![("load", load.key), (final_node.stage, final_node.key)],
+                        )
                     }
                 };
                 p.extend(cost);
-                Some((
-                    NodeDef::new("layout", self.versions.layout, p, inputs),
-                    req,
-                ))
+                Some((NodeDef::new("layout", self.versions.layout, p, inputs), req))
             }
         };
         let measure = spec.rays.map(|rays| {
@@ -1093,8 +1093,9 @@ impl Runner {
         }
         let st = first.ok_or_else(|| Error::internal("repeat = 0"))?;
         // Accuracy of compression: against the uncompressed layout of the same topology (untimed).
-        let extras = layout.as_ref().map(|l| {
-            match l.layout.uncompressed(bvh, tris) {
+        let extras = layout
+            .as_ref()
+            .map(|l| match l.layout.uncompressed(bvh, tris) {
                 None => (0.0, 0.0),
                 Some(u) => {
                     let r = u.trace(tris, &rays);
@@ -1104,8 +1105,7 @@ impl Runner {
                         (st.total_intersections as f64 - r.total_intersections as f64) / n,
                     )
                 }
-            }
-        });
+            });
         let mut files = BTreeMap::new();
         let heatmap = match rays_spec {
             RaySpec::Primary { width, height } => {

@@ -452,7 +452,9 @@ pub fn auto_candidates() -> Vec<String> {
     for chunk in [64, 128] {
         for frame in ["chunk", "parent"] {
             for bits in [4, 6, 8] {
-                c.push(format!("qbvh:bits={bits},chunk_bytes={chunk},frame={frame}"));
+                c.push(format!(
+                    "qbvh:bits={bits},chunk_bytes={chunk},frame={frame}"
+                ));
             }
         }
     }
@@ -649,7 +651,8 @@ mod tests {
             panic!()
         };
         assert_eq!((l.name.as_str(), l.params.len()), ("bvh2", 0));
-        let LayoutRequest::Fixed(q) = parse_layout(" qbvh: frame=parent , chunk_bytes=128").unwrap()
+        let LayoutRequest::Fixed(q) =
+            parse_layout(" qbvh: frame=parent , chunk_bytes=128").unwrap()
         else {
             panic!()
         };
@@ -691,7 +694,10 @@ mod tests {
             assert!(e.message().contains(needle), "{bad}: {e}");
         }
         for c in auto_candidates() {
-            assert!(matches!(parse_layout(&c), Ok(LayoutRequest::Fixed(_))), "{c}");
+            assert!(
+                matches!(parse_layout(&c), Ok(LayoutRequest::Fixed(_))),
+                "{c}"
+            );
         }
     }
 

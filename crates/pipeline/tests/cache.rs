@@ -126,7 +126,10 @@ fn test_layout(spec: &LayoutSpec, bvh: &Bvh, tris: &[Triangle]) -> Result<Layout
         assert!(!bvh.nodes.is_empty(), "BVH layouts get the final BVH");
         return Ok(Layout::Bvh2(Bvh2::build(bvh)));
     }
-    assert!(bvh.nodes.is_empty(), "octrees are built from the triangles alone");
+    assert!(
+        bvh.nodes.is_empty(),
+        "octrees are built from the triangles alone"
+    );
     let mut b = Aabb::EMPTY;
     for t in tris {
         b.grow(&t.bounds());
@@ -915,13 +918,18 @@ fn layout_keys_follow_name_params_and_inputs() {
     let m = store
         .read_manifest("layout", &Key::from_hex(k[1]).unwrap())
         .unwrap();
-    assert!(m.inputs.contains(&format!("build:{}", rows[1].keys["build"])));
+    assert!(m
+        .inputs
+        .contains(&format!("build:{}", rows[1].keys["build"])));
     // Row fields.
     let r = &rows[0];
     assert_eq!(r.layout.as_deref(), Some("bvh2"));
     assert_eq!(r.layout_params.as_deref(), Some(""));
     assert_eq!(r.topology_bytes, Some(32 * (r.inner_nodes + r.leaves)));
-    assert_eq!(r.total_bytes, Some(32 * (r.inner_nodes + r.leaves) + 4 * 60));
+    assert_eq!(
+        r.total_bytes,
+        Some(32 * (r.inner_nodes + r.leaves) + 4 * 60)
+    );
     assert_eq!(r.layout_nodes, Some(r.inner_nodes + r.leaves));
     assert_eq!(r.topology_bits_per_node, Some(256.0));
     assert_eq!(r.prim_refs, Some(60));
@@ -935,7 +943,9 @@ fn layout_keys_follow_name_params_and_inputs() {
         Some("bits=8,chunk_bytes=128,frame=chunk")
     );
     assert!(
-        rows[3].method.ends_with(" @qbvh bits=8,chunk_bytes=128,frame=chunk"),
+        rows[3]
+            .method
+            .ends_with(" @qbvh bits=8,chunk_bytes=128,frame=chunk"),
         "{}",
         rows[3].method
     );
@@ -984,7 +994,11 @@ fn layout_with_rays_warm_lost_bin_and_version_bump() {
     std::fs::remove_file(store.path("measure", &mk, "json")).unwrap();
     let (again, c) = run_all(dir.path(), Versions::default(), &ch);
     assert_eq!(
-        (stage(&c, "layout"), stage(&c, "measure"), stage(&c, "build")),
+        (
+            stage(&c, "layout"),
+            stage(&c, "measure"),
+            stage(&c, "build")
+        ),
         ((1, 1), (1, 1), (0, 1))
     );
     assert!(store.path("layout", &lk, "bin").is_file());
@@ -1012,7 +1026,12 @@ fn layout_with_rays_warm_lost_bin_and_version_bump() {
 fn layout_input_errors() {
     let dir = tempfile::tempdir().unwrap();
     let mut r = test_runner(dir.path(), Versions::default());
-    for bad in ["zip", "qbvh:chunk_bytes", "bvh2:bits=8", "auto:max_slowdown=0"] {
+    for bad in [
+        "zip",
+        "qbvh:chunk_bytes",
+        "bvh2:bits=8",
+        "auto:max_slowdown=0",
+    ] {
         let e = r
             .run_chain(&layout_chain("4", bad, false), "t")
             .unwrap_err();

@@ -1,0 +1,226 @@
+//! The layout stage through the real runner (real builders, layouts and traversals) on small
+//! generated scenes: memory fields, the bvh2 anchor, accuracy counters, shared octree nodes, the
+//! auto search (with thresholds that make its choice independent of timing) and input errors.
+use bvhlab_pipeline::stages::{LayoutSummary, AUTO_RAYS};
+use bvhlab_pipeline::{with_threads, ChainSpec, Key, RaySpec, ResultRow, Runner, Store};
+
+const SCENE: &str = "gen:sphere:n=3000";
+
+fn chain(build: &str, layout: Option<&str>, rays: bool) -> ChainSpec {
+    let mut c = ChainSpec::new(SCENE, build);
+    c.repeat = 2;
+    c.layout = layout.map(str::to_string);
+    c.rays = rays.then_some(RaySpec::Random { count: 2000 });
+    c
+}
+
+fn run(r: &mut Runner, c: &ChainSpec) -> ResultRow {
+    r.run_chain(c, "t")
+        .unwrap_or_else(|e| panic!("{:?}: {e}", c.layout))
+}
+
+fn summary(r: &Runner, row: &ResultRow) -> LayoutSummary {
+    let k = Key::from_hex(&row.keys["layout"]).unwrap();
+    r.store.get("layout", &k, "sum").unwrap()
+}
+
+#[test]
+fn bvh2_through_the_pipeline() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = Runner::new(Store::open(dir.path()).unwrap());
+    let plain = run(&mut r, &chain("binned-sah", None, true));
+    let row = run(&mut r, &chain("binned-sah", Some("bvh2"), true));
+    let nodes = row.inner_nodes + row.leaves;
+    assert!(row.valid);
+    assert_eq!(row.layout.as_deref(), Some("bvh2"));
+    assert_eq!(row.topology_bytes, Some(32 * nodes));
+    assert_eq!(row.total_bytes, Some(32 * nodes + 4 * row.triangles));
+    assert_eq!(row.topology_bits_per_node, Some(256.0));
+    assert_eq!(
+        row.topology_bytes_per_triangle,
+        Some(32.0 * nodes as f64 / row.triangles as f64)
+    );
+    assert_eq!((row.chunks, row.prim_refs), (Some(0), Some(row.triangles)));
+    assert_eq!(row.layout_sah_cost, Some(row.sah_cost));
+    assert_eq!(row.extra_box_hits_per_ray, Some(0.0));
+    assert_eq!(row.extra_tests_per_ray, Some(0.0));
+    assert!(row.slowdown.unwrap() > 0.0 && row.bvh2_trace_seconds.unwrap() > 0.0);
+    assert!(
+        row.peak_build_bytes.unwrap() >= 32 * nodes,
+        "the copy of the nodes at least"
+    );
+    // Same traversal, same counters as the chain without a layout stage.
+    assert_eq!(row.hits, plain.hits);
+    assert_eq!(row.traversal_steps_per_ray, plain.traversal_steps_per_ray);
+    assert_eq!(row.keys["build"], plain.keys["build"]);
+    assert_ne!(row.keys["measure"], plain.keys["measure"]);
+    assert!(plain.layout.is_none() && plain.topology_bytes.is_none());
+    assert!(row.method.ends_with(" @bvh2"), "{}", row.method);
+}
+
+#[test]
+fn invalid_specs_are_input_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = Runner::new(Store::open(dir.path()).unwrap());
+    for bad in [
+        "zip",
+        "qbvh:frame=sideways",
+        "qbvh:chunk_bytes=20",
+        "qbvh:bits=0",
+        "octree1:chunk_bytes=12",
+        "octree:fill=dense",
+        "auto:rays=1",
+        "bvh2:",
+    ] {
+        let e = r
+            .run_chain(&chain("binned-sah", Some(bad), false), "t")
+            .unwrap_err();
+        assert_eq!(e.exit_code(), 2, "{bad}: {e}");
+        assert!(e.message().contains("layout"), "{bad}: {e}");
+    }
+    assert_eq!(r.counts.computed, 0);
+}
+
+#[test]
+fn qbvh_is_smaller_and_exact() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = Runner::new(Store::open(dir.path()).unwrap());
+    let b = run(&mut r, &chain("sweep-sah", Some("bvh2"), true));
+    for spec in ["qbvh", "qbvh:chunk_bytes=128,frame=parent,bits=6"] {
+        let q = run(&mut r, &chain("sweep-sah", Some(spec), true));
+        assert!(q.valid, "{spec}");
+        assert_eq!(q.layout.as_deref(), Some("qbvh"));
+        assert!(
+            q.topology_bytes.unwrap() < b.topology_bytes.unwrap(),
+            "{spec}"
+        );
+        assert!(q.chunks.unwrap() > 0 && q.chunk_fill.unwrap() > 0.0);
+        assert_eq!(q.layout_nodes, b.layout_nodes, "same topology");
+        assert_eq!(q.hits, b.hits, "{spec}: same hits as bvh2");
+        // Quantized boxes contain the exact ones: SAH cost and extra work cannot be negative.
+        assert!(
+            q.layout_sah_cost.unwrap() >= q.sah_cost * (1.0 - 1e-9),
+            "{spec}"
+        );
+        assert!(q.extra_box_hits_per_ray.unwrap() >= 0.0, "{spec}");
+        assert!(q.extra_tests_per_ray.unwrap() >= 0.0, "{spec}");
+        let steps = q.traversal_steps_per_ray.unwrap() - b.traversal_steps_per_ray.unwrap();
+        assert!((steps - q.extra_box_hits_per_ray.unwrap()).abs() < 1e-9);
+        assert!(q.slowdown.unwrap() > 0.0);
+    }
+}
+
+#[test]
+fn octrees_share_one_node_across_builders() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = Runner::new(Store::open(dir.path()).unwrap());
+    let a = run(&mut r, &chain("binned-sah", Some("octree1"), true));
+    let before = r.counts.stage("layout");
+    let b = run(&mut r, &chain("spatial-median", Some("octree1"), true));
+    assert_eq!(a.keys["layout"], b.keys["layout"]);
+    assert_eq!(
+        r.counts.stage("layout"),
+        before,
+        "the octree node is not built again"
+    );
+    assert_ne!(a.keys["measure"], b.keys["measure"], "bvh2 anchor differs");
+    for row in [&a, &b] {
+        assert!(row.valid);
+        assert_eq!(row.hits, a.hits);
+        assert!(
+            row.prim_refs.unwrap() >= row.triangles,
+            "references may repeat"
+        );
+        assert!(row.topology_bits_per_node.unwrap() < 8.0);
+        assert!(row.chunks.unwrap() > 0);
+    }
+    // octree1 against the basic octree of the same construction.
+    let o = run(&mut r, &chain("binned-sah", Some("octree"), true));
+    assert_eq!(o.extra_box_hits_per_ray, Some(0.0));
+    assert_eq!(o.layout_nodes, a.layout_nodes);
+    assert_eq!(o.prim_refs, a.prim_refs);
+    assert!(o.topology_bytes.unwrap() > a.topology_bytes.unwrap());
+    assert_eq!(
+        a.intersections_per_ray.unwrap() - o.intersections_per_ray.unwrap(),
+        a.extra_tests_per_ray.unwrap()
+    );
+}
+
+#[test]
+fn auto_with_thresholds_that_do_not_depend_on_timing() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = Runner::new(Store::open(dir.path()).unwrap());
+    // Nothing qualifies but bvh2 (no layout is 10^4 times faster).
+    let slow = run(
+        &mut r,
+        &chain(
+            "binned-sah",
+            Some("auto:max_slowdown=0.0001,rays=500"),
+            true,
+        ),
+    );
+    assert_eq!(slow.layout.as_deref(), Some("bvh2"));
+    let choice = slow.layout_choice.clone().unwrap();
+    assert!(
+        choice.starts_with("bvh2:") && choice.contains("qbvh") && choice.contains("octree1"),
+        "{choice}"
+    );
+    assert!(
+        slow.method.ends_with(" @auto max_slowdown=0.0001,rays=500"),
+        "{}",
+        slow.method
+    );
+    // Everything qualifies: the smallest candidate wins.
+    let any = run(
+        &mut r,
+        &chain("binned-sah", Some("auto:max_slowdown=1e9,rays=500"), true),
+    );
+    let s = summary(&r, &any);
+    let c = s.choice.as_ref().unwrap();
+    assert_eq!(
+        c.candidates.len(),
+        bvhlab_pipeline::stages::auto_candidates().len()
+    );
+    assert!(
+        c.candidates.iter().all(|c| c.error.is_none()),
+        "{:?}",
+        c.candidates
+    );
+    let min = c.candidates.iter().map(|c| c.total_bytes).min().unwrap();
+    assert_eq!(any.total_bytes, Some(min));
+    assert_eq!(
+        any.layout.as_deref(),
+        Some(c.candidates[c.chosen].layout.as_str())
+    );
+    assert_eq!(
+        any.layout_params.as_deref(),
+        Some(c.candidates[c.chosen].params.as_str())
+    );
+    assert!(any.valid && any.hits == slow.hits);
+    assert_eq!(AUTO_RAYS, 20_000);
+    // Cached: the decision is read back, not searched again.
+    let n = r.counts.computed;
+    let again = run(
+        &mut Runner::new(Store::open(dir.path()).unwrap()),
+        &chain("binned-sah", Some("auto:max_slowdown=1e9,rays=500"), true),
+    );
+    assert_eq!(again.layout_choice, any.layout_choice);
+    assert_eq!(r.counts.computed, n);
+}
+
+#[test]
+fn layouts_are_identical_at_any_thread_count() {
+    for spec in ["qbvh:frame=parent", "octree1:fill=dense"] {
+        let mut hashes = Vec::new();
+        for threads in [1, 2] {
+            let dir = tempfile::tempdir().unwrap();
+            let mut r = Runner::new(Store::open(dir.path()).unwrap());
+            let row = with_threads(Some(threads), || {
+                run(&mut r, &chain("binned-sah", Some(spec), false))
+            })
+            .unwrap();
+            hashes.push(summary(&r, &row).layout_hash);
+        }
+        assert_eq!(hashes[0], hashes[1], "{spec}");
+    }
+}
