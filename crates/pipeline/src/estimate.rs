@@ -7,10 +7,15 @@
 //! the stage is added to a chain (the runner keeps the scene and every BVH of a chain in memory
 //! until the next scene, so the stages' shares add up rather than overlap).
 //!
-//! Calibration (release build, `/usr/bin/time -v` "Maximum resident set size", `bvhlab eval
-//! --no-cache --repeat 1`, 2 threads, gen:sphere at n = 200k, 800k and 1.6M; slope between sizes,
-//! so the fixed part drops out, then rounded up ~20% for safety): see the comments at each constant
-//! for the measured chains. `layout` could not be measured here (the stage is being written in
+//! Calibration (release build, `/usr/bin/time -v` "Maximum resident set size" of `bvhlab eval
+//! --no-cache --repeat 1 --threads 2`, 2026-11-22; gen:sphere at n = 1k, 200k, 800k): baseline 12.5
+//! MiB at 1k triangles. Load + build, growth per triangle 200k -> 800k: binned-sah 222 B, sweep-sah
+//! 226, ploc 227, lbvh (+ encode) 231, aac (+ encode) 242; at 200k from the baseline: binned 186,
+//! sweep-sah leaf=1 259. Files (binned-sah): stanford_bunny 213, conference 226 (tobj's arrays add
+//! ~40 over a generated scene). +collapse: 13-40. +ibo (max_passes=2, after sweep-sah leaf=1): 156
+//! at 200k, 163 at 50k. Random rays: nothing per triangle, ~37 B per ray. The constants below are
+//! these shares rounded up by ~20% (binned 800k: estimate 264 MB, measured 179 MB; sweep leaf=1 +
+//! ibo 200k: 117 vs 93). `layout` could not be measured here (the stage is being written in
 //! parallel): its constant is derived from the layouts' sizes (Kilian 6.2: at most the BVH2's 32
 //! bytes per node, ~2 nodes per triangle, plus build buffers) and should be re-measured.
 use crate::error::{Error, Result};
@@ -25,12 +30,12 @@ pub const STAGES: [&str; 7] = [
     "load", "encode", "build", "optimize", "compact", "layout", "measure",
 ];
 
-/// Process baseline (binary, rayon pools, allocator): the intercept of the calibration fits.
-pub const BASE_BYTES: u64 = 24 << 20;
+/// Process baseline (binary, rayon pools, allocator): 12.5 MiB measured, rounded up.
+pub const BASE_BYTES: u64 = 16 << 20;
 
-/// Per ray traced: the ray (32 B), its hit record, per-ray counters and the heat map pixel, plus the
-/// shadow pass's primary rays.
-pub const BYTES_PER_RAY: u64 = 160;
+/// Per ray traced (ray, hit record, counters, heat map pixel; shadow rays include their primary
+/// pass): ~37 B measured, rounded up.
+pub const BYTES_PER_RAY: u64 = 64;
 
 /// Text bytes per triangle of an OBJ file: 33-47 on the shared scenes (bunny 34.7, armadillo 46.7,
 /// sibenik 33.2, breakfast_room 36.9, conference 37.5); the low end overestimates the count.
@@ -39,23 +44,22 @@ pub const OBJ_TEXT_BYTES_PER_TRIANGLE: u64 = 30;
 /// Peak growth per triangle when `stage` is in the chain (see the module comment).
 pub fn bytes_per_triangle(stage: &str) -> f64 {
     match stage {
-        // The scene (36 B/triangle), its serialized artifact (36) written to the cache, and, for
-        // files, tobj's vertex/index arrays while parsing.
-        "load" => 170.0,
-        // Boxes + centres (36 B), codes + order (12-16 B), the radix sort's buffers.
-        "encode" => 120.0,
-        // Boxes + centres, per-builder work arrays (sweep SAH: 3 sorted index lists and prefix
-        // areas; PLOC/AAC: clusters), the BVH (~2 nodes x 32 B + 4 B index) and its artifact bytes.
-        "build" => 420.0,
-        // DynTree (explicit children and parents, boxes: ~100 B per node), the search queues and the
-        // output BVH.
-        "optimize" => 500.0,
-        // The collapsed BVH and its artifact.
-        "compact" => 160.0,
+        // The scene (36 B/triangle), its serialized artifact while it is written, and for files
+        // tobj's vertex and index arrays while parsing (~40).
+        "load" => 110.0,
+        // Codes + order (12-16 B) and the radix sort's buffers (aac/lbvh minus binned: 9-20).
+        "encode" => 25.0,
+        // Boxes + centres (36 B), the builder's work arrays, the BVH (~2 nodes x 32 B + 4 B index
+        // for leaf=1) and its artifact bytes (load + build: 186-259 measured).
+        "build" => 200.0,
+        // DynTree (explicit children, parents, boxes), the search queues and the output BVH (156-163).
+        "optimize" => 190.0,
+        // The collapsed BVH and its artifact (13-40).
+        "compact" => 45.0,
         // Not measured (see the module comment).
-        "layout" => 200.0,
-        // Traversal reads the scene and BVH already counted; the boxes for the random-ray sphere.
-        "measure" => 40.0,
+        "layout" => 100.0,
+        // Traversal reads the scene and BVH counted above (rays are counted per ray).
+        "measure" => 10.0,
         _ => 0.0,
     }
 }
@@ -352,6 +356,6 @@ mod tests {
         let e = check("s", &est, Some(&(1000, "--max-memory".into()))).unwrap_err();
         assert_eq!(e.exit_code(), 2);
         assert!(e.message().contains("estimated peak"), "{e}");
-        assert!(e.message().contains("build 420"), "{e}");
+        assert!(e.message().contains("build 200"), "{e}");
     }
 }
