@@ -32,13 +32,19 @@ sets = ["primary:24x24", "random:1000"]
 
 fn command(args: &[&str], cwd: &Path) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_bvhlab"));
-    c.args(args).current_dir(cwd).env_remove("BVHLAB_CACHE").env_remove("BVHLAB_MAX_MEMORY");
+    c.args(args)
+        .current_dir(cwd)
+        .env_remove("BVHLAB_CACHE")
+        .env_remove("BVHLAB_MAX_MEMORY");
     c
 }
 
 fn json_line(o: &Output) -> serde_json::Value {
     let s = String::from_utf8_lossy(&o.stdout);
-    let last = s.lines().last().unwrap_or_else(|| panic!("no stdout; stderr: {}", String::from_utf8_lossy(&o.stderr)));
+    let last = s
+        .lines()
+        .last()
+        .unwrap_or_else(|| panic!("no stdout; stderr: {}", String::from_utf8_lossy(&o.stderr)));
     serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {last}"))
 }
 
@@ -76,23 +82,38 @@ fn untimed_rows(report: &Path) -> Vec<Vec<String>> {
     let keep: Vec<usize> = (0..header.len())
         .filter(|&i| {
             let h = &header[i];
-            !(h.contains("seconds") || h.contains("mrays") || h == "slowdown" || h == "optimize_trace" || h == "heatmap")
+            !(h.contains("seconds")
+                || h.contains("mrays")
+                || h == "slowdown"
+                || h == "optimize_trace"
+                || h == "heatmap")
         })
         .collect();
-    rows[1..].iter().map(|r| keep.iter().map(|&i| r.get(i).cloned().unwrap_or_default()).collect()).collect()
+    rows[1..]
+        .iter()
+        .map(|r| {
+            keep.iter()
+                .map(|&i| r.get(i).cloned().unwrap_or_default())
+                .collect()
+        })
+        .collect()
 }
 
 /// Every file under a real name in the stage directories is complete: manifests parse, artifacts
 /// pass their codec checksum. Returns how many files were checked.
 fn check_visible_files(root: &Path) -> u64 {
     let mut n = 0;
-    let Ok(dirs) = std::fs::read_dir(root) else { return 0 };
+    let Ok(dirs) = std::fs::read_dir(root) else {
+        return 0;
+    };
     for d in dirs.flatten() {
         let name = d.file_name().to_string_lossy().to_string();
         if name == "locks" || name == "quarantine" || !d.path().is_dir() {
             continue;
         }
-        let Ok(files) = std::fs::read_dir(d.path()) else { continue };
+        let Ok(files) = std::fs::read_dir(d.path()) else {
+            continue;
+        };
         for f in files.flatten() {
             let fname = f.file_name().to_string_lossy().to_string();
             if fname.starts_with(".tmp-") {
@@ -100,11 +121,16 @@ fn check_visible_files(root: &Path) -> u64 {
             }
             let p: PathBuf = f.path();
             // Renamed into place whole: a read sees the old or the new file, never a partial one.
-            let Ok(bytes) = std::fs::read(&p) else { continue };
+            let Ok(bytes) = std::fs::read(&p) else {
+                continue;
+            };
             if fname.ends_with(".json") {
-                serde_json::from_slice::<Manifest>(&bytes).unwrap_or_else(|e| panic!("partial manifest {}: {e}", p.display()));
-            } else if fname.ends_with(".bin") || fname.ends_with(".sum") || fname.ends_with(".opt") {
-                codec::verify(&bytes).unwrap_or_else(|e| panic!("partial artifact {}: {e}", p.display()));
+                serde_json::from_slice::<Manifest>(&bytes)
+                    .unwrap_or_else(|e| panic!("partial manifest {}: {e}", p.display()));
+            } else if fname.ends_with(".bin") || fname.ends_with(".sum") || fname.ends_with(".opt")
+            {
+                codec::verify(&bytes)
+                    .unwrap_or_else(|e| panic!("partial artifact {}: {e}", p.display()));
             }
             n += 1;
         }
@@ -118,10 +144,26 @@ fn two_concurrent_sweeps_compute_each_stage_once() {
     let cwd = dir.path().to_path_buf();
     std::fs::write(cwd.join("t.toml"), EXPERIMENT).unwrap();
 
-    let single = command(&["sweep", "t.toml", "--cache", "single", "--out", "single-rep", "--threads", "1"], &cwd)
-        .output()
-        .unwrap();
-    assert!(single.status.success(), "{}", String::from_utf8_lossy(&single.stderr));
+    let single = command(
+        &[
+            "sweep",
+            "t.toml",
+            "--cache",
+            "single",
+            "--out",
+            "single-rep",
+            "--threads",
+            "1",
+        ],
+        &cwd,
+    )
+    .output()
+    .unwrap();
+    assert!(
+        single.status.success(),
+        "{}",
+        String::from_utf8_lossy(&single.stderr)
+    );
     let single_computed = json_line(&single)["computed"].as_u64().unwrap();
     let reference = untimed_rows(&cwd.join("single-rep"));
 
@@ -140,21 +182,43 @@ fn two_concurrent_sweeps_compute_each_stage_once() {
     let children: Vec<_> = ["a", "b"]
         .iter()
         .map(|out| {
-            command(&["sweep", "t.toml", "--cache", "shared", "--out", out, "--threads", "1"], &cwd)
-                .stdout(Stdio::piped())
-                .stderr(Stdio::piped())
-                .spawn()
-                .unwrap()
+            command(
+                &[
+                    "sweep",
+                    "t.toml",
+                    "--cache",
+                    "shared",
+                    "--out",
+                    out,
+                    "--threads",
+                    "1",
+                ],
+                &cwd,
+            )
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
         })
         .collect();
-    let outputs: Vec<Output> = children.into_iter().map(|c| c.wait_with_output().unwrap()).collect();
+    let outputs: Vec<Output> = children
+        .into_iter()
+        .map(|c| c.wait_with_output().unwrap())
+        .collect();
     done.store(true, Ordering::Relaxed);
     let (scans, files) = watcher.join().unwrap();
-    assert!(scans > 0 && files > 0, "the watcher saw the cache ({scans} scans, {files} files)");
+    assert!(
+        scans > 0 && files > 0,
+        "the watcher saw the cache ({scans} scans, {files} files)"
+    );
 
     let mut computed = 0;
     for (o, out) in outputs.iter().zip(["a", "b"]) {
-        assert!(o.status.success(), "{out}: {}", String::from_utf8_lossy(&o.stderr));
+        assert!(
+            o.status.success(),
+            "{out}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
         let v = json_line(o);
         computed += v["computed"].as_u64().unwrap();
         assert_eq!(
@@ -162,9 +226,18 @@ fn two_concurrent_sweeps_compute_each_stage_once() {
             single_computed,
             "{out}: every node counted once: {v}"
         );
-        assert_eq!(untimed_rows(&cwd.join(out)), reference, "{out}: same rows as one sweep");
+        assert_eq!(
+            untimed_rows(&cwd.join(out)),
+            reference,
+            "{out}: same rows as one sweep"
+        );
     }
-    assert_eq!(computed, single_computed, "each stage computed once in total");
-    let o = command(&["cache", "verify", "--cache", "shared"], &cwd).output().unwrap();
+    assert_eq!(
+        computed, single_computed,
+        "each stage computed once in total"
+    );
+    let o = command(&["cache", "verify", "--cache", "shared"], &cwd)
+        .output()
+        .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stdout));
 }

@@ -75,18 +75,29 @@ fn untimed_rows(report: &Path) -> Vec<Vec<(String, String)>> {
     let keep: Vec<usize> = (0..header.len())
         .filter(|&i| {
             let h = &header[i];
-            !(h.contains("seconds") || h.contains("mrays") || h == "slowdown" || h == "optimize_trace" || h == "heatmap")
+            !(h.contains("seconds")
+                || h.contains("mrays")
+                || h == "slowdown"
+                || h == "optimize_trace"
+                || h == "heatmap")
         })
         .collect();
     rows[1..]
         .iter()
-        .map(|r| keep.iter().map(|&i| (header[i].clone(), r.get(i).cloned().unwrap_or_default())).collect())
+        .map(|r| {
+            keep.iter()
+                .map(|&i| (header[i].clone(), r.get(i).cloned().unwrap_or_default()))
+                .collect()
+        })
         .collect()
 }
 
 fn json_line(o: &Output) -> serde_json::Value {
     let s = String::from_utf8_lossy(&o.stdout);
-    let last = s.lines().last().unwrap_or_else(|| panic!("no stdout; stderr: {}", String::from_utf8_lossy(&o.stderr)));
+    let last = s
+        .lines()
+        .last()
+        .unwrap_or_else(|| panic!("no stdout; stderr: {}", String::from_utf8_lossy(&o.stderr)));
     serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {last}"))
 }
 
@@ -108,7 +119,19 @@ fn sigkill_at_many_points_then_resume_gives_identical_results() {
 
     // Reference: one uninterrupted cold run.
     let t0 = Instant::now();
-    let o = bvhlab(&["sweep", "k.toml", "--cache", "ref", "--out", "ref-rep", "--threads", "2"], cwd);
+    let o = bvhlab(
+        &[
+            "sweep",
+            "k.toml",
+            "--cache",
+            "ref",
+            "--out",
+            "ref-rep",
+            "--threads",
+            "2",
+        ],
+        cwd,
+    );
     let total = t0.elapsed();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let reference = untimed_rows(&cwd.join("ref-rep"));
@@ -123,7 +146,16 @@ fn sigkill_at_many_points_then_resume_gives_identical_results() {
         let cache = format!("c{i}");
         let out = format!("r{i}");
         let mut child = Command::new(env!("CARGO_BIN_EXE_bvhlab"))
-            .args(["sweep", "k.toml", "--cache", &cache, "--out", &out, "--threads", "2"])
+            .args([
+                "sweep",
+                "k.toml",
+                "--cache",
+                &cache,
+                "--out",
+                &out,
+                "--threads",
+                "2",
+            ])
             .current_dir(cwd)
             .env_remove("BVHLAB_CACHE")
             .stdout(Stdio::null())
@@ -138,15 +170,49 @@ fn sigkill_at_many_points_then_resume_gives_identical_results() {
         child.wait().unwrap();
         // Right after the kill nothing half-written is visible under a real name.
         verify_clean(&cache, cwd, &format!("after a kill at {delay:?}"));
-        let o = bvhlab(&["sweep", "k.toml", "--cache", &cache, "--out", &out, "--threads", "2"], cwd);
-        assert!(o.status.success(), "resume after a kill at {delay:?}: {}", String::from_utf8_lossy(&o.stderr));
+        let o = bvhlab(
+            &[
+                "sweep",
+                "k.toml",
+                "--cache",
+                &cache,
+                "--out",
+                &out,
+                "--threads",
+                "2",
+            ],
+            cwd,
+        );
+        assert!(
+            o.status.success(),
+            "resume after a kill at {delay:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
         let v = json_line(&o);
-        let (computed, cached) = (v["computed"].as_u64().unwrap(), v["cached"].as_u64().unwrap());
-        assert_eq!(computed + cached, ref_computed, "every node counted once: {v}");
-        assert_eq!(untimed_rows(&cwd.join(&out)), reference, "rows after a kill at {delay:?}");
-        verify_clean(&cache, cwd, &format!("after resuming from a kill at {delay:?}"));
+        let (computed, cached) = (
+            v["computed"].as_u64().unwrap(),
+            v["cached"].as_u64().unwrap(),
+        );
+        assert_eq!(
+            computed + cached,
+            ref_computed,
+            "every node counted once: {v}"
+        );
+        assert_eq!(
+            untimed_rows(&cwd.join(&out)),
+            reference,
+            "rows after a kill at {delay:?}"
+        );
+        verify_clean(
+            &cache,
+            cwd,
+            &format!("after resuming from a kill at {delay:?}"),
+        );
     }
-    assert!(killed >= points / 2, "only {killed} of {points} runs were still running when killed");
+    assert!(
+        killed >= points / 2,
+        "only {killed} of {points} runs were still running when killed"
+    );
 }
 
 /// Input limits (issue 6.6; kept in this file with the other failure-mode tests): a scene whose
@@ -157,15 +223,35 @@ fn too_large_for_memory_fails_early_with_the_estimate() {
     let dir = tempfile::tempdir().unwrap();
     let cwd = dir.path();
     let o = bvhlab(
-        &["eval", "--scene", "gen:sphere:n=1000000", "--build", "sweep-sah", "--cache", "c", "--max-memory", "64M"],
+        &[
+            "eval",
+            "--scene",
+            "gen:sphere:n=1000000",
+            "--build",
+            "sweep-sah",
+            "--cache",
+            "c",
+            "--max-memory",
+            "64M",
+        ],
         cwd,
     );
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
-    for needle in ["not enough memory", "estimated peak", "triangles", "bytes per triangle", "64.0 MiB", "--max-memory"] {
+    for needle in [
+        "not enough memory",
+        "estimated peak",
+        "triangles",
+        "bytes per triangle",
+        "64.0 MiB",
+        "--max-memory",
+    ] {
         assert!(err.contains(needle), "missing `{needle}` in: {err}");
     }
-    assert!(!cwd.join("c").join("load").exists(), "failed before loading anything");
+    assert!(
+        !cwd.join("c").join("load").exists(),
+        "failed before loading anything"
+    );
     // Same through the environment, and for a sweep (checked before its first chain).
     std::fs::write(cwd.join("big.toml"), "name = \"big\"\nscenes = [\"gen:hairball:n=2000000\"]\n[[chain]]\nbuild = \"binned-sah\"\n").unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_bvhlab"))
@@ -174,16 +260,37 @@ fn too_large_for_memory_fails_early_with_the_estimate() {
         .env("BVHLAB_MAX_MEMORY", "100M")
         .output()
         .unwrap();
-    assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     assert!(String::from_utf8_lossy(&o.stderr).contains("BVHLAB_MAX_MEMORY"));
 
-    let o = bvhlab(&["eval", "--scene", "gen:sphere:n=2000", "--build", "lbvh", "--no-cache", "--json", "--repeat", "1"], cwd);
+    let o = bvhlab(
+        &[
+            "eval",
+            "--scene",
+            "gen:sphere:n=2000",
+            "--build",
+            "lbvh",
+            "--no-cache",
+            "--json",
+            "--repeat",
+            "1",
+        ],
+        cwd,
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v = json_line(&o);
     let est = &v["memory_estimate"];
     assert_eq!(est["triangles"], v["triangles"], "{est}");
     for stage in ["load", "encode", "build"] {
-        assert!(est["bytes_per_triangle"][stage].as_f64().unwrap() > 0.0, "{stage}: {est}");
+        assert!(
+            est["bytes_per_triangle"][stage].as_f64().unwrap() > 0.0,
+            "{stage}: {est}"
+        );
     }
     assert!(est["peak_bytes"].as_u64().unwrap() > 2000 * 100, "{est}");
 }

@@ -116,7 +116,11 @@ pub fn chain_estimate(spec: &ChainSpec, stages: &[&str]) -> Result<Option<Memory
 }
 
 /// Estimate for a chain over a scene of `(triangles, exact)` (from `triangle_count`).
-pub fn estimate(spec: &ChainSpec, stages: &[&str], (triangles, exact): (u64, bool)) -> MemoryEstimate {
+pub fn estimate(
+    spec: &ChainSpec,
+    stages: &[&str],
+    (triangles, exact): (u64, bool),
+) -> MemoryEstimate {
     let bpt: BTreeMap<String, f64> = stages
         .iter()
         .map(|s| (s.to_string(), bytes_per_triangle(s)))

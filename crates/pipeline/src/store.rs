@@ -20,8 +20,8 @@ use crate::error::{Error, Result};
 use crate::key::Key;
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::fs;
 use std::collections::HashMap;
+use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -343,7 +343,10 @@ impl Store {
             return;
         }
         // Block without holding the table's mutex.
-        match self.open_lock(stage, key).and_then(|f| f.lock().map(|()| f)) {
+        match self
+            .open_lock(stage, key)
+            .and_then(|f| f.lock().map(|()| f))
+        {
             Ok(f) => {
                 let mut held = self.locks.lock().unwrap_or_else(|e| e.into_inner());
                 held.insert((stage.to_string(), *key), f);
@@ -512,8 +515,7 @@ impl Store {
             .map(|e| e.path())
             .filter(|p| {
                 p.is_dir()
-                    && p
-                        .file_name()
+                    && p.file_name()
                         .is_some_and(|n| n != "quarantine" && n != "locks")
             })
             .collect();
@@ -640,8 +642,14 @@ impl Store {
                         Err(e) => Some(format!("unreadable: {e}")),
                         Ok(bytes) => {
                             if blake3::hash(&bytes).to_hex().as_str() != want {
-                                Some("blake3 differs from manifest (truncated, corrupt or foreign)".to_string())
-                            } else if bytes.starts_with(&codec::MAGIC) || ext == "bin" || ext == "sum" {
+                                Some(
+                                    "blake3 differs from manifest (truncated, corrupt or foreign)"
+                                        .to_string(),
+                                )
+                            } else if bytes.starts_with(&codec::MAGIC)
+                                || ext == "bin"
+                                || ext == "sum"
+                            {
                                 codec::verify(&bytes).err()
                             } else {
                                 None
@@ -667,7 +675,8 @@ impl Store {
                     if m.files.is_empty() {
                         let _ = fs::remove_file(f);
                     } else if let Err(e) = self.commit(&m) {
-                        r.bad.push(format!("{}: cannot rewrite manifest: {e}", f.display()));
+                        r.bad
+                            .push(format!("{}: cannot rewrite manifest: {e}", f.display()));
                     }
                 }
             }
@@ -768,7 +777,10 @@ mod tests {
         // Writer pid above Linux's pid_max: dead, so its temp file is garbage.
         fs::write(dir.path().join("build").join(".tmp-4999999-0-x.bin"), b"x").unwrap();
         // A live writer's (ours) temp file is left alone.
-        let live = dir.path().join("build").join(format!(".tmp-{}-0-y.bin", std::process::id()));
+        let live = dir
+            .path()
+            .join("build")
+            .join(format!(".tmp-{}-0-y.bin", std::process::id()));
         fs::write(&live, b"y").unwrap();
         let g = s.gc();
         assert_eq!(g.removed_files, 2);

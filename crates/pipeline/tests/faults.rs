@@ -14,7 +14,11 @@ fn chain(n: u32, compact: &str) -> ChainSpec {
 }
 
 fn chains() -> Vec<ChainSpec> {
-    vec![chain(2000, "none"), chain(2000, "collapse"), chain(3000, "none")]
+    vec![
+        chain(2000, "none"),
+        chain(2000, "collapse"),
+        chain(3000, "none"),
+    ]
 }
 
 fn untimed(rows: &[ResultRow]) -> Vec<ResultRow> {
@@ -33,7 +37,10 @@ fn untimed(rows: &[ResultRow]) -> Vec<ResultRow> {
 /// Runs every chain with a fresh runner; returns rows and computed count.
 fn run(root: &Path) -> (Vec<ResultRow>, u64) {
     let mut r = Runner::new(Store::open(root).unwrap());
-    let rows = chains().iter().map(|c| r.run_chain(c, "t").unwrap()).collect();
+    let rows = chains()
+        .iter()
+        .map(|c| r.run_chain(c, "t").unwrap())
+        .collect();
     assert_eq!(r.store.held_locks(), 0, "no lock outlives its chain");
     (rows, r.counts.computed)
 }
@@ -53,7 +60,12 @@ fn fixture() -> Fixture {
     assert_eq!(computed, 8);
     let store = Store::open(&root).unwrap();
     assert!(store.check(false).clean());
-    Fixture { _dir: dir, root, rows, store }
+    Fixture {
+        _dir: dir,
+        root,
+        rows,
+        store,
+    }
 }
 
 fn key(f: &Fixture, row: usize, stage: &str) -> Key {
@@ -68,7 +80,11 @@ fn assert_detected(damage: impl Fn(&Fixture), bad: usize, recompute: u64) {
     damage(&f);
     let r = f.store.check(false);
     assert_eq!(r.bad.len(), bad, "{:?}", r.bad);
-    assert_eq!(f.store.check(false).bad.len(), bad, "a report-only check changes nothing");
+    assert_eq!(
+        f.store.check(false).bad.len(),
+        bad,
+        "a report-only check changes nothing"
+    );
     let (rows, computed) = run(&f.root);
     assert_eq!(computed, recompute, "recomputed nodes");
     assert_eq!(untimed(&rows), untimed(&f.rows));
@@ -99,13 +115,26 @@ fn rewrite(p: &Path, f: impl FnOnce(&mut Vec<u8>)) {
 fn truncated_artifacts() {
     // The measure summary (what a warm run reads): the measure is recomputed.
     assert_detected(
-        |f| rewrite(&f.store.path("measure", &key(f, 0, "measure"), "sum"), |b| b.truncate(b.len() / 2)),
+        |f| {
+            rewrite(
+                &f.store.path("measure", &key(f, 0, "measure"), "sum"),
+                |b| b.truncate(b.len() / 2),
+            )
+        },
         1,
         1,
     );
     // A scene truncated to less than a header: found by check; a warm run never reads it, so
     // nothing is recomputed (the build summaries are intact).
-    assert_detected(|f| rewrite(&f.store.path("load", &key(f, 0, "load"), "bin"), |b| b.truncate(20)), 1, 0);
+    assert_detected(
+        |f| {
+            rewrite(&f.store.path("load", &key(f, 0, "load"), "bin"), |b| {
+                b.truncate(20)
+            })
+        },
+        1,
+        0,
+    );
 }
 
 #[test]
@@ -134,7 +163,11 @@ fn foreign_artifacts() {
         |f| {
             let (a, b) = (key(f, 0, "build"), key(f, 2, "build"));
             for ext in ["bin", "sum"] {
-                std::fs::copy(f.store.path("build", &b, ext), f.store.path("build", &a, ext)).unwrap();
+                std::fs::copy(
+                    f.store.path("build", &b, ext),
+                    f.store.path("build", &a, ext),
+                )
+                .unwrap();
             }
         },
         2,
@@ -145,7 +178,11 @@ fn foreign_artifacts() {
         |f| {
             let (a, b) = (key(f, 0, "measure"), key(f, 2, "measure"));
             for ext in ["sum", "json"] {
-                std::fs::copy(f.store.path("measure", &b, ext), f.store.path("measure", &a, ext)).unwrap();
+                std::fs::copy(
+                    f.store.path("measure", &b, ext),
+                    f.store.path("measure", &a, ext),
+                )
+                .unwrap();
             }
         },
         1,
@@ -156,11 +193,20 @@ fn foreign_artifacts() {
 #[test]
 fn broken_manifest_and_missing_file() {
     assert_detected(
-        |f| rewrite(&f.store.path("compact", &key(f, 1, "compact"), "json"), |b| b.truncate(b.len() - 3)),
+        |f| {
+            rewrite(
+                &f.store.path("compact", &key(f, 1, "compact"), "json"),
+                |b| b.truncate(b.len() - 3),
+            )
+        },
         1,
         1,
     );
-    assert_detected(|f| std::fs::remove_file(f.store.path("measure", &key(f, 2, "measure"), "sum")).unwrap(), 1, 1);
+    assert_detected(
+        |f| std::fs::remove_file(f.store.path("measure", &key(f, 2, "measure"), "sum")).unwrap(),
+        1,
+        1,
+    );
 }
 
 #[test]
@@ -168,7 +214,10 @@ fn leftovers_of_a_killed_run_are_harmless() {
     let f = fixture();
     let k = key(&f, 0, "build");
     // A temp file of a dead writer with a complete copy of a manifest: never read as an entry.
-    let dead = f.root.join("build").join(format!(".tmp-4999999-0-{}.json", Key([7; 32]).hex()));
+    let dead = f
+        .root
+        .join("build")
+        .join(format!(".tmp-4999999-0-{}.json", Key([7; 32]).hex()));
     std::fs::copy(f.store.path("build", &k, "json"), &dead).unwrap();
     // Data files of an entry whose manifest was never written.
     let orphan = f.store.path("build", &Key([9; 32]), "bin");
@@ -180,7 +229,11 @@ fn leftovers_of_a_killed_run_are_harmless() {
     let (rows, computed) = run(&f.root);
     assert_eq!(computed, 0);
     assert_eq!(rows, f.rows);
-    assert_eq!(f.store.entries().len(), entries, "temp manifest is not an entry");
+    assert_eq!(
+        f.store.entries().len(),
+        entries,
+        "temp manifest is not an entry"
+    );
     let r = f.store.check(true);
     assert_eq!(r.stale_temp, 1);
     assert!(!dead.exists());
@@ -203,7 +256,12 @@ fn failed_chain_releases_its_locks() {
     assert_eq!(r.store.held_locks(), 0);
     // Another open file description (a separate flock) can take the load lock now.
     let lock_dir = root.join("locks").join("load");
-    let lock = std::fs::read_dir(&lock_dir).unwrap().next().unwrap().unwrap().path();
+    let lock = std::fs::read_dir(&lock_dir)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
     let f = std::fs::File::open(&lock).unwrap();
     f.try_lock().expect("lock released after the failed chain");
 }
@@ -223,7 +281,11 @@ fn two_runners_compute_each_node_once() {
         })
         .collect();
     let results: Vec<_> = handles.into_iter().map(|h| h.join().unwrap()).collect();
-    assert_eq!(results[0].1 + results[1].1, single, "each node computed once in total");
+    assert_eq!(
+        results[0].1 + results[1].1,
+        single,
+        "each node computed once in total"
+    );
     assert_eq!(untimed(&results[0].0), untimed(&results[1].0));
     assert!(Store::open(&root).unwrap().check(false).clean());
 }
