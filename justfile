@@ -43,6 +43,11 @@ bonsai:
 outliers:
     cargo run --release -- sweep experiments/morton-outliers.toml
 
+# Kilian 2021: compressed layouts (qbvh, octree, octree1 by chunk size, frame, bits; auto) on the shared scenes,
+# a hairball and a terrain; bytes per triangle vs trace time vs extra tests, findings table. Cold runtime not measured yet (no release build with the layout stage in time).
+kilian:
+    cargo run --release -- sweep experiments/kilian-chunks.toml
+
 # The Morton-family speed targets with PASS/MISS, beside Embree, in one run.
 bench-morton RUNS="5":
     bash scripts/bench-builders.sh morton {{RUNS}}

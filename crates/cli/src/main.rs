@@ -1,5 +1,5 @@
 //! `bvhlab`: sweep experiments, evaluate one chain, inspect the cache, list scene generators and
-//! methods (builders, encoders).
+//! methods (builders, encoders, optimizers, layouts).
 use bvhlab_pipeline::{
     estimate, run::Runner, store, sweep::sweep, ChainSpec, Error, Experiment, RaySpec, Registry, Result, Store,
 };
@@ -58,6 +58,11 @@ enum Cmd {
         /// Ray set to trace: primary[:WxH], shadow[:WxH] or random[:COUNT].
         #[arg(long)]
         rays: Option<String>,
+        /// Memory layout of the final BVH (Kilian 2021), traced by --rays with its own traversal
+        /// beside bvh2: NAME[:k=v,...], e.g. bvh2, qbvh:chunk_bytes=128,frame=parent,bits=6,
+        /// octree1:chunk_bytes=16, auto:max_slowdown=1.3 (see `bvhlab methods`).
+        #[arg(long)]
+        layout: Option<String>,
         #[arg(long)]
         threads: Option<usize>,
         /// Focus box `minx,miny,minz,maxx,maxy,maxz`: reports focus_triangles and focus_sah_cost.
@@ -88,7 +93,7 @@ enum Cmd {
     },
     /// List scene generators and their parameters.
     Scenes,
-    /// List builders, encoders and optimizers with their parameters (defaults in brackets).
+    /// List builders, encoders, optimizers and layouts with their parameters (defaults in brackets).
     Methods,
 }
 
@@ -178,7 +183,7 @@ fn run(cli: Cli) -> Result<()> {
             println!("{summary}");
             Ok(())
         }
-        Cmd::Eval { scene, build, encode, optimize, compact, set, rays, focus, threads, repeat, cache, no_cache, json, max_memory } => {
+        Cmd::Eval { scene, build, encode, optimize, compact, set, rays, layout, focus, threads, repeat, cache, no_cache, json, max_memory } => {
             let mut spec = ChainSpec::new(&scene, &build);
             spec.encode = encode;
             spec.optimize = optimize.filter(|o| o != "none");
@@ -187,6 +192,7 @@ fn run(cli: Cli) -> Result<()> {
             spec.compact = compact;
             spec.repeat = repeat;
             spec.rays = rays.as_deref().map(RaySpec::parse).transpose()?;
+            spec.layout = layout.filter(|l| l != "none");
             let estimate = check_memory(std::slice::from_ref(&spec), max_memory.as_deref())?;
             let store = if no_cache { Store::temporary()? } else { Store::open(store::resolve_root(cache.as_deref()))? };
             let mut runner = Runner::new(store);
@@ -210,11 +216,13 @@ fn run(cli: Cli) -> Result<()> {
             } else if let Some(o) = v.as_object() {
                 for (k, val) in o {
                     match (k.as_str(), val.as_array()) {
+                        _ if LAYOUT_FIELDS.contains(&k.as_str()) => {}
                         // The per-pass trace is for plots and --json; one line here.
                         ("optimize_trace", Some(a)) => println!("{k}: {} passes (see --json)", a.len().saturating_sub(1)),
                         _ => println!("{k}: {val}"),
                     }
                 }
+                print_layout_block(o);
             }
             Ok(())
         }
@@ -310,8 +318,66 @@ fn run(cli: Cli) -> Result<()> {
                 println!("  {}  {}", o.name, o.about);
                 o.params.iter().for_each(show);
             }
+            println!("layouts (--layout NAME[:k=v,...]; the final BVH in memory, traced by --rays beside bvh2):");
+            use bvhlab_pipeline::bvhlab_layout::{param_schema, LAYOUTS};
+            for name in LAYOUTS {
+                println!("  {name}  {}", layout_about(name));
+                for (k, d) in param_schema(name).unwrap_or(&[]) {
+                    println!("    {k}=[{d}]");
+                }
+            }
+            println!("  auto  smallest total bytes within a trace-time slowdown against bvh2, picked per scene from a small measured search (machine dependent)");
+            println!("    max_slowdown=[{}]", bvhlab_pipeline::stages::AUTO_MAX_SLOWDOWN);
+            println!("    rays=[{}]  random rays each candidate is timed on", bvhlab_pipeline::stages::AUTO_RAYS);
             Ok(())
         }
+    }
+}
+
+/// Row fields of the layout stage, printed as their own block by `eval` (without --json).
+const LAYOUT_FIELDS: [&str; 19] = [
+    "layout",
+    "layout_params",
+    "topology_bytes",
+    "total_bytes",
+    "topology_bytes_per_triangle",
+    "total_bytes_per_triangle",
+    "topology_bits_per_node",
+    "layout_nodes",
+    "chunks",
+    "chunk_fill",
+    "prim_refs",
+    "peak_build_bytes",
+    "layout_seconds",
+    "layout_sah_cost",
+    "extra_box_hits_per_ray",
+    "extra_tests_per_ray",
+    "bvh2_trace_seconds",
+    "slowdown",
+    "layout_choice",
+];
+
+fn print_layout_block(o: &serde_json::Map<String, serde_json::Value>) {
+    let Some(name) = o.get("layout").and_then(|v| v.as_str()) else {
+        return;
+    };
+    println!("layout: {name} {}", o.get("layout_params").and_then(|v| v.as_str()).unwrap_or(""));
+    for k in &LAYOUT_FIELDS[2..] {
+        match o.get(*k) {
+            None | Some(serde_json::Value::Null) => {}
+            Some(serde_json::Value::String(s)) => println!("  {k}: {s}"),
+            Some(v) => println!("  {k}: {v}"),
+        }
+    }
+}
+
+fn layout_about(name: &str) -> &'static str {
+    match name {
+        "bvh2" => "the flat 32-byte-node BVH (the baseline every layout is compared with)",
+        "qbvh" => "Kilian 5.2 quantized BVH: bit-field topology in fixed-size chunks, `bits` per box coordinate, frame = chunk root or parent box",
+        "octree" => "Kilian 4.1 basic octree, 32-bit nodes, built from the triangles (ignores the BVH; references may repeat)",
+        "octree1" => "Kilian 4.2 1-bit octree in fixed-size chunks (ignores the BVH)",
+        _ => "",
     }
 }
 

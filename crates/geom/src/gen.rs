@@ -8,6 +8,9 @@
 //! (terrain), long thin overlapping triangles (hairball), small objects on a huge primitive
 //! (city; Frantal thesis, architectural scenes with big polygons), a distant tiny outlier
 //! (outlier; Riemersma 2024, Morton code precision), and degenerate input (degenerate).
+//! The stress scenes of issue 6 (huge-edge, flat, slivers, dups, same-centroid, scale, nonfinite,
+//! single, staircase) isolate one failure mode each: huge primitives, zero extents, overlap,
+//! duplicates, coincident centroids, float range, NaN/inf input, n = 1 and very deep trees.
 use crate::{LoadError, Scene, Triangle};
 use glam::DVec3;
 use std::collections::BTreeMap;
@@ -119,6 +122,116 @@ fn table() -> Vec<Gen> {
             ranges: &[Range::Int(1, N_MAX), SEED],
             build: |p| degenerate(p.int("n"), p.int("seed")),
         },
+        // Stress scenes (issue 6): the inputs on which BVH libraries are known to break.
+        Gen {
+            info: GeneratorInfo {
+                name: "huge-edge",
+                about: "small triangles in the unit cube plus a few huge sheets at the scene edge (x = 1), \
+                        size times larger, whose boxes overlap everything",
+                params: &[
+                    ("n", "2000", "small triangles (exact)"),
+                    ("huge", "4", "huge triangles added after them"),
+                    ("size", "1000", "half side of the huge triangles relative to the unit cube"),
+                    ("seed", "1", "random seed"),
+                ],
+            },
+            ranges: &[Range::Int(1, N_MAX), Range::Int(0, 1000), Range::Float(0.0, 1e30), SEED],
+            build: |p| huge_edge(p.int("n"), p.int("huge"), p.float("size"), p.int("seed")),
+        },
+        Gen {
+            info: GeneratorInfo {
+                name: "flat",
+                about: "random small triangles all in the plane z = 0.5 exactly: every box has zero z extent",
+                params: &[("n", "2000", "triangle count (exact)"), ("seed", "1", "random seed")],
+            },
+            ranges: &[Range::Int(1, N_MAX), SEED],
+            build: |p| flat(p.int("n"), p.int("seed")),
+        },
+        Gen {
+            info: GeneratorInfo {
+                name: "slivers",
+                about: "long thin triangles spanning almost the whole x range, all overlapping the middle; \
+                        every 8th exactly collinear (zero area)",
+                params: &[
+                    ("n", "2000", "triangle count (exact)"),
+                    ("width", "0.0001", "sliver width relative to the unit cube"),
+                    ("seed", "1", "random seed"),
+                ],
+            },
+            ranges: &[Range::Int(1, N_MAX), Range::Float(0.0, 1.0), SEED],
+            build: |p| slivers(p.int("n"), p.float("width"), p.int("seed")),
+        },
+        Gen {
+            info: GeneratorInfo {
+                name: "dups",
+                about: "every triangle repeated exactly `copies` times (interleaved), a third of them zero-area \
+                        (points, collinear, two equal vertices)",
+                params: &[
+                    ("n", "2000", "triangle count (exact)"),
+                    ("copies", "8", "exact copies of each distinct triangle"),
+                    ("seed", "1", "random seed"),
+                ],
+            },
+            ranges: &[Range::Int(1, N_MAX), Range::Int(1, N_MAX), SEED],
+            build: |p| dups(p.int("n"), p.int("copies"), p.int("seed")),
+        },
+        Gen {
+            info: GeneratorInfo {
+                name: "same-centroid",
+                about: "triangles of very different sizes whose boxes all share one centre exactly \
+                        (dyadic coordinates): centroid bounds of zero extent",
+                params: &[("n", "2000", "triangle count (exact)"), ("seed", "1", "random seed")],
+            },
+            ranges: &[Range::Int(1, N_MAX), SEED],
+            build: |p| same_centroid(p.int("n"), p.int("seed")),
+        },
+        Gen {
+            info: GeneratorInfo {
+                name: "scale",
+                about: "random small triangles in the cube [0, s]^3: s = 1e-30 or 1e30 tests float range \
+                        (areas under- or overflow f32)",
+                params: &[
+                    ("n", "2000", "triangle count (exact)"),
+                    ("s", "1", "scale of every coordinate"),
+                    ("seed", "1", "random seed"),
+                ],
+            },
+            ranges: &[Range::Int(1, N_MAX), Range::Float(1e-37, 1e37), SEED],
+            build: |p| scale(p.int("n"), p.float("s"), p.int("seed")),
+        },
+        Gen {
+            info: GeneratorInfo {
+                name: "nonfinite",
+                about: "random triangles of which `bad` (spread evenly) get a NaN, +inf, -inf or f32-overflowing \
+                        coordinate: the scene drops and counts them (dropped_triangles = bad)",
+                params: &[
+                    ("n", "2000", "triangles generated, including the bad ones"),
+                    ("bad", "200", "non-finite triangles among them (at most n)"),
+                    ("seed", "1", "random seed"),
+                ],
+            },
+            ranges: &[Range::Int(1, N_MAX), Range::Int(0, N_MAX), SEED],
+            build: |p| nonfinite(p.int("n"), p.int("bad"), p.int("seed")),
+        },
+        Gen {
+            info: GeneratorInfo {
+                name: "single",
+                about: "one triangle (seed 0: (0,0,0) (1,0,0) (0,1,0); otherwise random in the unit cube)",
+                params: &[("seed", "0", "random seed (0: the fixed right triangle)")],
+            },
+            ranges: &[SEED],
+            build: |p| single(p.int("seed")),
+        },
+        Gen {
+            info: GeneratorInfo {
+                name: "staircase",
+                about: "n equal steps (one tread triangle each) climbing the diagonal of the unit square in x/y: \
+                        a long, thin, one-dimensional scene; input-order insertion makes trees as deep as n",
+                params: &[("n", "100000", "steps = triangles (exact)")],
+            },
+            ranges: &[Range::Int(1, N_MAX)],
+            build: |p| staircase(p.int("n")),
+        },
     ]
 }
 
@@ -129,7 +242,18 @@ pub fn generators() -> Vec<GeneratorInfo> {
 /// `spec` is the part after `gen:`, e.g. `sphere:n=10000`.
 pub fn generate(spec: &str) -> Result<Scene, LoadError> {
     let (g, values) = parse(spec)?;
-    Ok(Scene::from_triangles((g.build)(&values)))
+    let scene = Scene::from_triangles((g.build)(&values));
+    // Same rule as the OBJ loader: a scene with nothing finite left is an error, not an empty scene.
+    if scene.triangles.is_empty() {
+        return Err(spec_err(
+            spec,
+            format!(
+                "no triangles with finite coordinates ({} non-finite dropped)",
+                scene.dropped_triangles
+            ),
+        ));
+    }
+    Ok(scene)
 }
 
 /// `NAME:k=v,...` with every parameter (defaults filled in), keys sorted and values normalised,
@@ -516,6 +640,167 @@ fn degenerate(n: u64, seed: u64) -> Vec<Triangle> {
         out.push(t);
     }
     out
+}
+
+/// A random triangle with vertices in [0, 1)^3 within `size` of its first vertex.
+fn small_tri(rng: &mut Rng, size: f64) -> (DVec3, DVec3, DVec3) {
+    let a = point(rng);
+    let b = a + (point(rng) - DVec3::splat(0.5)) * size;
+    let c = a + (point(rng) - DVec3::splat(0.5)) * size;
+    (a, b, c)
+}
+
+/// `n` small triangles in the unit cube, then `huge` triangles in the planes x = 1 + k/1000,
+/// spanning [-size, size] in y and z (a half-space-sized sheet at the edge of the content).
+fn huge_edge(n: u64, huge: u64, size: f64, seed: u64) -> Vec<Triangle> {
+    let mut rng = Rng::new(seed);
+    let mut out: Vec<Triangle> = (0..n)
+        .map(|_| {
+            let (a, b, c) = small_tri(&mut rng, 0.02);
+            tri(a, b, c)
+        })
+        .collect();
+    for k in 0..huge {
+        let x = 1.0 + k as f64 / 1000.0;
+        let s = size * (1.0 + rng.f64());
+        out.push(tri(
+            DVec3::new(x, -s, -s),
+            DVec3::new(x, s, -s),
+            DVec3::new(x, -s, s),
+        ));
+    }
+    out
+}
+
+/// Random small triangles in the plane z = 0.5 (exact in f32).
+fn flat(n: u64, seed: u64) -> Vec<Triangle> {
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|_| {
+            let (a, b, c) = small_tri(&mut rng, 0.05);
+            let z = |p: DVec3| DVec3::new(p.x, p.y, 0.5);
+            tri(z(a), z(b), z(c))
+        })
+        .collect()
+}
+
+/// Long thin triangles from near x = 0 to near x = 1 inside a narrow y/z band, so every box
+/// overlaps every other; the third vertex is `width` off the second (0 for every 8th: collinear).
+fn slivers(n: u64, width: f64, seed: u64) -> Vec<Triangle> {
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|i| {
+            let band = |rng: &mut Rng| 0.45 + 0.1 * rng.f64();
+            let a = DVec3::new(0.05 * rng.f64(), band(&mut rng), band(&mut rng));
+            let b = DVec3::new(1.0 - 0.05 * rng.f64(), band(&mut rng), band(&mut rng));
+            let (b, c) = if i % 8 == 7 {
+                // Axis-aligned, so still exactly collinear after rounding to f32.
+                (DVec3::new(b.x, a.y, a.z), DVec3::new(0.5, a.y, a.z))
+            } else {
+                let d = point(&mut rng) - DVec3::splat(0.5);
+                let len = (d.x * d.x + d.y * d.y + d.z * d.z).sqrt().max(1e-12);
+                (b, b + d * (width / len))
+            };
+            tri(a, b, c)
+        })
+        .collect()
+}
+
+/// `ceil(n / copies)` distinct triangles (every third zero-area), triangle i = distinct[i mod m],
+/// so the copies are spread through the input, not adjacent.
+fn dups(n: u64, copies: u64, seed: u64) -> Vec<Triangle> {
+    let mut rng = Rng::new(seed);
+    let m = n.div_ceil(copies.max(1)).max(1);
+    let distinct: Vec<Triangle> = (0..m)
+        .map(|i| {
+            let (a, b, c) = small_tri(&mut rng, 0.05);
+            match i % 9 {
+                0 => tri(a, a, a),
+                // Axis-aligned, so exactly collinear after rounding to f32.
+                3 => tri(
+                    a,
+                    DVec3::new(b.x, a.y, a.z),
+                    DVec3::new(0.5 * (a.x + b.x), a.y, a.z),
+                ),
+                6 => tri(a, b, b),
+                _ => tri(a, b, c),
+            }
+        })
+        .collect();
+    (0..n).map(|i| distinct[(i % m) as usize]).collect()
+}
+
+/// Boxes sharing the centre (0.5, 0.5, 0.5) exactly: vertices c + r, c - r and c + w with
+/// |w| <= |r| per axis on a dyadic lattice, sizes from 2^-20 to 1/2 (all exact in f32).
+fn same_centroid(n: u64, seed: u64) -> Vec<Triangle> {
+    let mut rng = Rng::new(seed);
+    let c = DVec3::splat(0.5);
+    (0..n)
+        .map(|_| {
+            let scale = 2f64.powi(-(rng.below(20) as i32) - 1);
+            let q = |rng: &mut Rng| (rng.below(2049) as f64 - 1024.0) / 1024.0;
+            let r = DVec3::new(q(&mut rng), q(&mut rng), q(&mut rng)) * scale;
+            let f = |rng: &mut Rng| (rng.below(5) as f64 - 2.0) / 2.0; // -1, -1/2, 0, 1/2, 1
+            let w = DVec3::new(r.x * f(&mut rng), r.y * f(&mut rng), r.z * f(&mut rng));
+            tri(c + r, c - r, c + w)
+        })
+        .collect()
+}
+
+/// Random small triangles in the unit cube, every coordinate times `s` (in f64, rounded once).
+fn scale(n: u64, s: f64, seed: u64) -> Vec<Triangle> {
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|_| {
+            let (a, b, c) = small_tri(&mut rng, 0.05);
+            tri(a * s, b * s, c * s)
+        })
+        .collect()
+}
+
+/// Random small triangles; `bad` of them, at indices floor(k n / bad), get one coordinate
+/// replaced by NaN, +inf, -inf or 1e39 (finite in f64, infinite once rounded to f32), in turn.
+fn nonfinite(n: u64, bad: u64, seed: u64) -> Vec<Triangle> {
+    let mut rng = Rng::new(seed);
+    let bad = bad.min(n);
+    let mut next_bad = 0u64; // index k of the next bad triangle
+    (0..n)
+        .map(|i| {
+            let (a, b, c) = small_tri(&mut rng, 0.05);
+            let mut t = tri(a, b, c);
+            if next_bad < bad && i == (next_bad as u128 * n as u128 / bad as u128) as u64 {
+                let v = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 1e39][(next_bad % 4) as usize];
+                let (vi, axis) = ((next_bad / 4 % 3) as usize, (next_bad / 12 % 3) as usize);
+                t.v[vi][axis] = v as f32;
+                next_bad += 1;
+            }
+            t
+        })
+        .collect()
+}
+
+fn single(seed: u64) -> Vec<Triangle> {
+    if seed == 0 {
+        return vec![tri(DVec3::ZERO, DVec3::X, DVec3::Y)];
+    }
+    let mut rng = Rng::new(seed);
+    vec![tri(point(&mut rng), point(&mut rng), point(&mut rng))]
+}
+
+/// Step i: the tread triangle (x_i, y, 0) (x_i+1, y, 0) (x_i, y, 1) with x_i = y = i/n, in input
+/// order along the stair (an incremental builder inserting in this order grows a chain).
+fn staircase(n: u64) -> Vec<Triangle> {
+    let s = 1.0 / n as f64;
+    (0..n)
+        .map(|i| {
+            let (x, y) = (i as f64 * s, i as f64 * s);
+            tri(
+                DVec3::new(x, y, 0.0),
+                DVec3::new(x + s, y, 0.0),
+                DVec3::new(x, y, 1.0),
+            )
+        })
+        .collect()
 }
 
 #[cfg(test)]

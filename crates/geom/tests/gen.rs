@@ -16,6 +16,15 @@ fn required_generators_exist_and_are_documented() {
         "city",
         "outlier",
         "degenerate",
+        "huge-edge",
+        "flat",
+        "slivers",
+        "dups",
+        "same-centroid",
+        "scale",
+        "nonfinite",
+        "single",
+        "staircase",
     ] {
         assert!(names.contains(&n), "{n} missing from {names:?}");
     }
@@ -37,7 +46,10 @@ fn deterministic_and_finite() {
         let a = load_scene(&spec).unwrap();
         let b = load_scene(&spec).unwrap();
         assert!(!a.triangles.is_empty(), "{name}");
-        assert_eq!(a.dropped_triangles, 0, "{name}");
+        // Only the non-finite stress scene has anything to drop.
+        if name != "nonfinite" {
+            assert_eq!(a.dropped_triangles, 0, "{name}");
+        }
         assert!(a.triangles.iter().all(|t| t.is_finite()), "{name}");
         // Bit-identical, not merely approximately equal.
         let bits = |s: &bvhlab_geom::Scene| -> Vec<u32> {
@@ -277,4 +289,89 @@ fn shuffle_permutes_deterministically() {
         kb.sort();
         assert_eq!(ka, kb, "{spec}: same triangles");
     }
+}
+
+#[test]
+fn stress_scenes_have_their_property() {
+    use bvhlab_geom::Triangle;
+    let g = |s: &str| generate(s).unwrap();
+    // huge-edge: n small + huge sheets at x >= 1 whose extent dwarfs the content.
+    let h = g("huge-edge:n=500,huge=3,size=1000");
+    assert_eq!(h.triangles.len(), 503);
+    for t in &h.triangles[500..] {
+        assert!(t.bounds().min.x >= 1.0 && t.bounds().extent().y >= 2000.0);
+    }
+    assert!(h.triangles[..500]
+        .iter()
+        .all(|t| t.bounds().extent().max_element() < 0.05));
+    // flat: all z equal.
+    let f = g("flat:n=700");
+    assert_eq!(f.triangles.len(), 700);
+    assert!(f.triangles.iter().all(|t| t.v.iter().all(|v| v.z == 0.5)));
+    assert_eq!(f.bounds().extent().z, 0.0);
+    // slivers: long, thin, 1 in 8 collinear, all overlapping x = 0.5.
+    let s = g("slivers:n=800,width=0.0001");
+    assert_eq!(s.triangles.len(), 800);
+    for t in &s.triangles {
+        let b = t.bounds();
+        assert!(b.extent().x > 0.85 && b.min.x <= 0.5 && b.max.x >= 0.5);
+    }
+    assert!(s.triangles.iter().filter(|t| t.area() == 0.0).count() >= 100);
+    // dups: exactly `copies` copies of each distinct triangle, some zero-area.
+    let d = g("dups:n=900,copies=9");
+    assert_eq!(d.triangles.len(), 900);
+    let key = |t: &Triangle| t.v.map(|v| v.to_array().map(f32::to_bits));
+    let mut m = std::collections::BTreeMap::new();
+    for t in &d.triangles {
+        *m.entry(key(t)).or_insert(0) += 1;
+    }
+    assert!(m.len() <= 100 && m.values().all(|&c| c >= 9), "{}", m.len());
+    assert!(d.triangles.iter().filter(|t| t.area() == 0.0).count() >= 200);
+    // same-centroid: one box centre exactly, sizes spread over orders of magnitude.
+    let c = g("same-centroid:n=500");
+    assert!(c
+        .triangles
+        .iter()
+        .all(|t| t.bounds().center() == bvhlab_geom::Vec3::splat(0.5)));
+    let sizes: Vec<f32> = c
+        .triangles
+        .iter()
+        .map(|t| t.bounds().extent().max_element())
+        .collect();
+    let (lo, hi) = sizes
+        .iter()
+        .fold((f32::MAX, 0f32), |(a, b), &s| (a.min(s), b.max(s)));
+    assert!(hi / lo.max(1e-30) > 1e4, "{lo} {hi}");
+    // scale: coordinates of magnitude s.
+    for (s, lo, hi) in [(1e-30f64, 1e-33f32, 2e-30f32), (1e30, 1e27, 2e30)] {
+        let sc = g(&format!("scale:n=300,s={s}"));
+        assert_eq!(sc.dropped_triangles, 0);
+        let b = sc.bounds();
+        assert!(
+            b.max.max_element() < hi && b.max.max_element() > lo,
+            "{s}: {b:?}"
+        );
+    }
+    // nonfinite: exactly `bad` dropped, the rest kept, every kind present.
+    let all_bad = generate("nonfinite:n=10,bad=10").unwrap_err();
+    assert!(all_bad.reason.contains("no triangles with finite coordinates"), "{all_bad}");
+    for (n, bad) in [(2000u64, 200u64), (10, 9), (10, 0), (7, 3)] {
+        let nf = g(&format!("nonfinite:n={n},bad={bad}"));
+        assert_eq!(nf.dropped_triangles, bad, "n={n} bad={bad}");
+        assert_eq!(nf.triangles.len() as u64, n - bad);
+    }
+    // single: one triangle.
+    assert_eq!(g("single").triangles.len(), 1);
+    assert_eq!(g("single:seed=5").triangles.len(), 1);
+    // staircase: n steps climbing the diagonal, one triangle each.
+    let st = g("staircase:n=1000");
+    assert_eq!(st.triangles.len(), 1000);
+    for w in st.triangles.windows(2) {
+        assert!(w[1].v[0].x > w[0].v[0].x && w[1].v[0].y > w[0].v[0].y);
+    }
+    assert_eq!(
+        canonical_spec("scale:s=1e30").unwrap(),
+        "scale:n=2000,s=1e30,seed=1"
+    );
+    assert_eq!(canonical_spec("staircase").unwrap(), "staircase:n=100000");
 }

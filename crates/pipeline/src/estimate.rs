@@ -94,6 +94,9 @@ pub fn chain_stages(spec: &ChainSpec, registry: &Registry) -> Vec<&'static str> 
     if spec.compact != "none" {
         out.push("compact");
     }
+    if spec.layout.is_some() {
+        out.push("layout");
+    }
     if spec.rays.is_some() {
         out.push("measure");
     }

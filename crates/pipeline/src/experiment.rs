@@ -1,12 +1,14 @@
 //! Experiment files (TOML): scenes x chains (parameter grids, cartesian product) x ray sets.
 //! The format is documented at the top of experiments/quick.toml.
 //!
-//! A `[[chain]]` table's keys other than `build`, `compact`, `encode` and `optimize` are parameters,
-//! routed by name to the builder, the encoder or the optimizer (see `Registry::resolve_chain`).
-//! `encode` and `optimize` (value or array) are more axes of the cartesian product. `[focus]` / `[focuses."SCENE"]` set a focus box.
+//! A `[[chain]]` table's keys other than `build`, `compact`, `encode`, `optimize` and `layout` are
+//! parameters, routed by name to the builder, the encoder or the optimizer (see
+//! `Registry::resolve_chain`). `encode`, `optimize` and `layout` (value or array) are more axes of
+//! the cartesian product; a layout entry is a spec string `NAME[:k=v,...]` (its parameters are not
+//! routed: `bits` would collide with the Morton encoder's), `none` for no layout stage. `[focus]` / `[focuses."SCENE"]` set a focus box.
 use crate::error::{Error, Result};
 use crate::registry::Registry;
-use crate::stages::{check_compact, focus_box, ChainSpec, RaySpec, SceneSource};
+use crate::stages::{check_compact, focus_box, parse_layout, ChainSpec, RaySpec, SceneSource};
 use bvhlab_bvh::{Aabb, CostParams};
 use bvhlab_geom::Vec3;
 use bvhlab_trace::Camera;
@@ -85,6 +87,8 @@ pub struct ChainPoint {
     pub optimize: Option<String>,
     pub compact: String,
     pub params: BTreeMap<String, String>,
+    /// Layout spec (`qbvh:chunk_bytes=128`, `auto:max_slowdown=1.3`); None: no layout stage.
+    pub layout: Option<String>,
 }
 
 #[derive(Clone, Debug)]
@@ -249,6 +253,11 @@ impl Experiment {
                 let encode = c.remove("encode");
                 // `optimize = ["none", "ibo"]` compares with and without an optimize stage.
                 let optimize = c.remove("optimize").filter(|o| o != "none");
+                // `layout = ["none", "qbvh"]` compares with and without a layout stage.
+                let layout = c.remove("layout").filter(|l| l != "none");
+                if let Some(l) = &layout {
+                    parse_layout(l).map_err(|e| err(e.message().to_string()))?;
+                }
                 check_compact(&compact).map_err(|e| err(e.message().to_string()))?;
                 registry
                     .resolve_chain(&build, encode.as_deref(), optimize.as_deref(), &c, cost)
@@ -259,6 +268,7 @@ impl Experiment {
                     optimize,
                     compact,
                     params: c,
+                    layout,
                 });
             }
         }
@@ -341,6 +351,7 @@ impl Experiment {
                         camera: self.cameras.get(spec).copied().or(self.camera),
                         repeat: self.repeat,
                         focus: self.focuses.get(spec).copied().or(self.focus),
+                        layout: p.layout.clone(),
                     });
                 }
             }
@@ -392,7 +403,8 @@ fov = 30
                 encode: None,
                 optimize: None,
                 compact: "none".into(),
-                params: [("bins".to_string(), "4".to_string())].into()
+                params: [("bins".to_string(), "4".to_string())].into(),
+                layout: None,
             }
         );
         assert_eq!(e.points[1].compact, "collapse");
@@ -577,6 +589,34 @@ max = [16.0, 4.0, 16.0]
         ))
         .unwrap_err();
         assert!(e.exit_code() == 2 && e.message().contains("max"), "{e}");
+    }
+
+    #[test]
+    fn layouts_are_an_axis() {
+        let head = "name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\nbuild = \"binned-sah\"\n";
+        let e = parse(&format!(
+            "{head}layout = [\"none\", \"bvh2\", \"qbvh:chunk_bytes=128,frame=parent\"]\nbins = 8\n"
+        ))
+        .unwrap();
+        let layouts: Vec<Option<&str>> = e.points.iter().map(|p| p.layout.as_deref()).collect();
+        assert_eq!(
+            layouts,
+            [None, Some("bvh2"), Some("qbvh:chunk_bytes=128,frame=parent")]
+        );
+        assert!(e.points.iter().all(|p| !p.params.contains_key("layout")));
+        assert_eq!(e.chains()[2].layout.as_deref(), Some("qbvh:chunk_bytes=128,frame=parent"));
+        for (bad, needle) in [
+            ("layout = \"zip\"\n", "zip"),
+            ("layout = \"qbvh:wat=1\"\n", "wat"),
+            ("layout = \"auto:max_slowdown=-1\"\n", "max_slowdown"),
+        ] {
+            let e = parse(&format!("{head}{bad}")).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{bad}");
+            assert!(
+                e.message().starts_with("exp.toml:3:") && e.message().contains(needle),
+                "{e}"
+            );
+        }
     }
 
     /// The experiment files shipped in `experiments/` parse with the current registry (a file whose

@@ -1,12 +1,14 @@
-//! The pipeline: content-hashed stages (load, build, compact, measure) cached on disk, experiment
-//! files, and the flat result rows the report and `eval --json` are made from. The only crate that
-//! knows about hashing, caching and files (besides scene loading).
+//! The pipeline: content-hashed stages (load, encode, build, optimize, compact, layout, measure,
+//! focus) cached on disk, experiment files, and the flat result rows the report and `eval --json`
+//! are made from. The only crate that knows about hashing, caching and files (besides scene
+//! loading). `memtrack` installs the counting global allocator (peak layout build memory).
 
 pub mod codec;
 pub mod error;
 pub mod estimate;
 pub mod experiment;
 pub mod key;
+pub mod memtrack;
 pub mod registry;
 pub mod row;
 pub mod run;
@@ -14,11 +16,13 @@ pub mod stages;
 pub mod store;
 pub mod sweep;
 
+/// The layout crate, for callers listing layouts and their parameters (the CLI).
+pub use bvhlab_layout;
 pub use error::{Error, Result};
 pub use experiment::Experiment;
 pub use key::Key;
 pub use registry::Registry;
 pub use row::ResultRow;
 pub use run::{with_threads, Counts, Runner};
-pub use stages::{ChainSpec, RaySpec, SceneSource, Versions};
+pub use stages::{parse_layout, ChainSpec, LayoutRequest, RaySpec, SceneSource, Versions};
 pub use store::Store;

@@ -79,6 +79,7 @@ struct Plan {
     compact: Option<NodeDef>,
     measure: Option<(NodeDef, RaySpec)>,
     focus: Option<NodeDef>,
+    layout: Option<(NodeDef, LayoutRequest)>,
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -115,6 +116,8 @@ pub struct Runner {
     encodings: HashMap<Key, Arc<EncodeArtifact>>,
     encode_sums: HashMap<Key, EncodeSummary>,
     opt_infos: HashMap<Key, OptimizeInfo>,
+    layouts: HashMap<Key, Arc<LayoutArtifact>>,
+    layout_sums: HashMap<Key, LayoutSummary>,
     file_hashes: HashMap<PathBuf, String>,
 }
 
@@ -142,6 +145,8 @@ impl Runner {
             encodings: HashMap::new(),
             encode_sums: HashMap::new(),
             opt_infos: HashMap::new(),
+            layouts: HashMap::new(),
+            layout_sums: HashMap::new(),
             file_hashes: HashMap::new(),
         }
     }
@@ -152,6 +157,7 @@ impl Runner {
         self.scenes.clear();
         self.bvhs.clear();
         self.encodings.clear();
+        self.layouts.clear();
     }
 
     fn note(&mut self, stage: &'static str, key: Key, computed: bool) {
@@ -257,8 +263,50 @@ impl Runner {
                 vec![(before_compact.stage, before_compact.key)],
             )
         });
+        let final_node = compact.as_ref().unwrap_or(before_compact);
+        let layout = match &spec.layout {
+            None => None,
+            Some(s) => {
+                let req = parse_layout(s)?;
+                let cost = [
+                    param("c_t", fmt_f32(resolved.cost.c_t)),
+                    param("c_i", fmt_f32(resolved.cost.c_i)),
+                    param("repeat", spec.repeat),
+                ];
+                let (mut p, inputs): (BTreeMap<String, String>, _) = match &req {
+                    LayoutRequest::Fixed(l) => {
+                        let mut p = l.params.clone();
+                        p.insert("layout".into(), l.name.clone());
+                        // Octrees are built from the triangles alone: keyed by the scene, so every
+                        // builder's chain shares one octree node.
+                        let inputs = if bvhlab_layout::uses_bvh(&l.name) {
+                            vec![("load", load.key), (final_node.stage, final_node.key)]
+                        } else {
+                            vec![("load", load.key)]
+                        };
+                        (p, inputs)
+                    }
+                    LayoutRequest::Auto(a) => {
+                        let p = [
+                            param("layout", "auto"),
+                            param("max_slowdown", a.max_slowdown),
+                            param("rays", a.rays),
+                            param("seed", AUTO_SEED),
+                            param("runs", AUTO_RUNS),
+                            param("candidates", auto_candidates().join(";")),
+                        ]
+                        .into();
+                        (p, vec![("load", load.key), (final_node.stage, final_node.key)])
+                    }
+                };
+                p.extend(cost);
+                Some((
+                    NodeDef::new("layout", self.versions.layout, p, inputs),
+                    req,
+                ))
+            }
+        };
         let measure = spec.rays.map(|rays| {
-            let final_node = compact.as_ref().unwrap_or(before_compact);
             let mut p: BTreeMap<String, String> = [
                 param("rays", rays.canonical()),
                 param(
@@ -274,14 +322,16 @@ impl Runner {
             if let RaySpec::Random { .. } = rays {
                 p.insert("seed".into(), RANDOM_SEED.to_string());
             }
-            let inputs = vec![("load", load.key), (final_node.stage, final_node.key)];
+            let mut inputs = vec![("load", load.key), (final_node.stage, final_node.key)];
+            if let Some((l, _)) = &layout {
+                inputs.push(("layout", l.key));
+            }
             (
                 NodeDef::new("measure", self.versions.measure, p, inputs),
                 rays,
             )
         });
         let focus = spec.focus.map(|b| {
-            let final_node = compact.as_ref().unwrap_or(before_compact);
             let p = [
                 param("box", focus_canonical(&b)),
                 param("c_t", fmt_f32(resolved.cost.c_t)),
@@ -303,6 +353,7 @@ impl Runner {
             compact,
             measure,
             focus,
+            layout,
         })
     }
 
@@ -737,6 +788,269 @@ impl Runner {
             .ok_or_else(|| Error::internal("optimize stage produced no trace"))
     }
 
+    // ---- layout -------------------------------------------------------------------------------
+
+    fn layout_full(&mut self, plan: &Plan) -> Result<Arc<LayoutArtifact>> {
+        let (node, req) = plan
+            .layout
+            .clone()
+            .ok_or_else(|| Error::internal("chain has no layout stage"))?;
+        if let Some(a) = self.layouts.get(&node.key) {
+            return Ok(a.clone());
+        }
+        if let Some(a) = self.cached::<LayoutArtifact>(&node, "bin") {
+            self.note("layout", node.key, false);
+            let a = Arc::new(a);
+            self.layout_sums.insert(node.key, a.summary.clone());
+            self.layouts.insert(node.key, a.clone());
+            return Ok(a);
+        }
+        let t0 = Instant::now();
+        let scene = self.scene_full(plan)?;
+        let tris = &scene.triangles;
+        let cost = plan.resolved.cost;
+        let needs_bvh = match &req {
+            LayoutRequest::Fixed(l) => bvhlab_layout::uses_bvh(&l.name),
+            LayoutRequest::Auto(_) => true,
+        };
+        // Octrees ignore the BVH: do not load (or compute) it for them.
+        let final_bvh = if needs_bvh {
+            Some(self.bvh_full(plan, plan.final_which())?)
+        } else {
+            None
+        };
+        let empty = Bvh {
+            nodes: Vec::new(),
+            prim_indices: Vec::new(),
+        };
+        let bvh = final_bvh.as_ref().map(|a| &a.bvh).unwrap_or(&empty);
+        let (spec, choice) = match req {
+            LayoutRequest::Fixed(l) => (l, None),
+            LayoutRequest::Auto(a) => {
+                let (l, c) = self.auto_search(plan, a, bvh, &scene)?;
+                (l, Some(c))
+            }
+        };
+        let mut seconds = Vec::new();
+        let mut first: Option<(bvhlab_layout::Layout, blake3::Hash)> = None;
+        let mut peak = 0;
+        for run in 0..plan.spec.repeat {
+            // Peak heap of the first build only (later builds reuse freed memory the same way).
+            let mark = (run == 0).then(crate::memtrack::reset_peak);
+            let t = Instant::now();
+            let l = (self.ops.layout)(&spec, bvh, tris).map_err(|e| {
+                Error::internal(format!(
+                    "layout `{}` on {}: {e}",
+                    spec.name, plan.spec.scene
+                ))
+            })?;
+            seconds.push(secs(t));
+            if let Some(m) = mark {
+                peak = crate::memtrack::peak_since(m);
+            }
+            let bytes = crate::codec::encode(&l).map_err(Error::internal)?;
+            let h = blake3::hash(&bytes);
+            match &first {
+                None => first = Some((l, h)),
+                Some((_, h0)) if *h0 != h => {
+                    return Err(Error::internal(format!(
+                        "layout `{}` is not deterministic: run {} produced a different layout than run 1 on {}",
+                        spec.name,
+                        run + 1,
+                        plan.spec.scene
+                    )));
+                }
+                _ => {}
+            }
+        }
+        let (layout, hash) = first.ok_or_else(|| Error::internal("repeat = 0"))?;
+        let validation = layout.validate(tris);
+        let summary = LayoutSummary {
+            layout: spec.name.clone(),
+            params: spec.params_string(),
+            memory: layout.memory(),
+            median_seconds: median(&seconds),
+            seconds,
+            sah_cost: layout.sah_cost(cost),
+            valid: validation.is_ok(),
+            invalid_reason: validation.err(),
+            peak_build_bytes: peak,
+            layout_hash: hash.to_hex().to_string(),
+            choice,
+        };
+        let art = LayoutArtifact { layout, summary };
+        let mut files = BTreeMap::new();
+        files.insert(
+            "bin".into(),
+            self.store.put("layout", &node.key, "bin", &art)?,
+        );
+        files.insert(
+            "sum".into(),
+            self.store.put("layout", &node.key, "sum", &art.summary)?,
+        );
+        self.commit(&node, files, secs(t0))?;
+        self.note("layout", node.key, true);
+        let art = Arc::new(art);
+        self.layout_sums.insert(node.key, art.summary.clone());
+        self.layouts.insert(node.key, art.clone());
+        Ok(art)
+    }
+
+    fn layout_summary(&mut self, plan: &Plan) -> Result<Option<LayoutSummary>> {
+        let Some((node, _)) = plan.layout.as_ref() else {
+            return Ok(None);
+        };
+        let key = node.key;
+        if let Some(s) = self.layout_sums.get(&key) {
+            return Ok(Some(s.clone()));
+        }
+        if let Some(s) = self.cached::<LayoutSummary>(node, "sum") {
+            self.note("layout", key, false);
+            self.layout_sums.insert(key, s.clone());
+            return Ok(Some(s));
+        }
+        let art = self.layout_full(plan)?;
+        if !self.store.path("layout", &key, "sum").exists() {
+            // Full artifact intact, summary not: restore it (identical bytes).
+            self.store.put("layout", &key, "sum", &art.summary)?;
+        }
+        Ok(Some(art.summary.clone()))
+    }
+
+    /// `layout=auto`: builds every candidate of `auto_candidates()`, times its trace of a random ray
+    /// sample alternately with bvh2 of the same BVH (median of `AUTO_RUNS`), and picks the candidate
+    /// with the fewest total bytes whose slowdown is at most `max_slowdown` (bvh2 always qualifies).
+    /// Timing-dependent, hence machine dependent: the decision and the measured table are stored.
+    fn auto_search(
+        &self,
+        plan: &Plan,
+        a: AutoSpec,
+        bvh: &Bvh,
+        scene: &Scene,
+    ) -> Result<(bvhlab_layout::LayoutSpec, AutoChoice)> {
+        let tris = &scene.triangles;
+        let rays = random_ray_set(scene, a.rays, AUTO_SEED);
+        let reference = bvhlab_trace::trace(bvh, tris, &rays);
+        let tri_count = tris.len().max(1) as f64;
+        let mut specs = Vec::new();
+        let mut candidates = Vec::new();
+        for c in auto_candidates() {
+            let spec = match parse_layout(&c)? {
+                LayoutRequest::Fixed(l) => l,
+                LayoutRequest::Auto(_) => return Err(Error::internal("auto candidate `auto`")),
+            };
+            let mut cand = AutoCandidate {
+                layout: spec.name.clone(),
+                params: spec.params_string(),
+                total_bytes: 0,
+                total_bytes_per_triangle: 0.0,
+                seconds: Vec::new(),
+                bvh2_seconds: Vec::new(),
+                slowdown: 0.0,
+                error: None,
+            };
+            match (self.ops.layout)(&spec, bvh, tris) {
+                Err(e) => cand.error = Some(e),
+                Ok(l) => {
+                    let mem = l.memory();
+                    cand.total_bytes = mem.total_bytes;
+                    cand.total_bytes_per_triangle = mem.total_bytes as f64 / tri_count;
+                    if let Err(e) = l.validate(tris) {
+                        cand.error = Some(format!("invalid: {e}"));
+                    } else {
+                        // Untimed first run (warms caches) doubles as an exactness check.
+                        let st = l.trace(tris, &rays);
+                        let bad = hit_mismatches(&st.hits, &reference.hits);
+                        if bad > 0 {
+                            cand.error = Some(format!("{bad} hits differ from bvh2"));
+                        } else {
+                            for run in 0..AUTO_RUNS {
+                                // Alternate which goes first so neither side always runs warm.
+                                let time_layout = |c: &mut AutoCandidate| {
+                                    let t = Instant::now();
+                                    std::hint::black_box(l.trace(tris, &rays));
+                                    c.seconds.push(secs(t));
+                                };
+                                let time_bvh2 = |c: &mut AutoCandidate| {
+                                    let t = Instant::now();
+                                    std::hint::black_box(bvhlab_trace::trace(bvh, tris, &rays));
+                                    c.bvh2_seconds.push(secs(t));
+                                };
+                                if run % 2 == 0 {
+                                    time_layout(&mut cand);
+                                    time_bvh2(&mut cand);
+                                } else {
+                                    time_bvh2(&mut cand);
+                                    time_layout(&mut cand);
+                                }
+                            }
+                            let b = median(&cand.bvh2_seconds);
+                            cand.slowdown = if b > 0.0 {
+                                median(&cand.seconds) / b
+                            } else {
+                                1.0
+                            };
+                        }
+                    }
+                }
+            }
+            specs.push(spec);
+            candidates.push(cand);
+        }
+        let chosen = candidates
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| {
+                c.error.is_none() && (c.layout == "bvh2" || c.slowdown <= a.max_slowdown)
+            })
+            .min_by_key(|(i, c)| (c.total_bytes, *i))
+            .map(|(i, _)| i)
+            .ok_or_else(|| {
+                Error::internal(format!(
+                    "layout auto on {}: no usable candidate (bvh2 failed)",
+                    plan.spec.scene
+                ))
+            })?;
+        let c = &candidates[chosen];
+        let label = |c: &AutoCandidate| {
+            if c.params.is_empty() {
+                c.layout.clone()
+            } else {
+                format!("{} {}", c.layout, c.params)
+            }
+        };
+        let table: Vec<String> = candidates
+            .iter()
+            .map(|c| match &c.error {
+                Some(e) => format!("{} (unusable: {e})", label(c)),
+                None => format!(
+                    "{} ({:.2} B/tri, {:.2}x)",
+                    label(c),
+                    c.total_bytes_per_triangle,
+                    c.slowdown
+                ),
+            })
+            .collect();
+        let reason = format!(
+            "{}: fewest total bytes ({:.2} B/tri) with slowdown {:.2}x <= max_slowdown {} (bvh2 always qualifies; {} random rays, median of {} alternated runs); candidates: {}",
+            label(c),
+            c.total_bytes_per_triangle,
+            c.slowdown,
+            a.max_slowdown,
+            a.rays,
+            AUTO_RUNS,
+            table.join("; ")
+        );
+        let choice = AutoChoice {
+            max_slowdown: a.max_slowdown,
+            rays: a.rays,
+            candidates,
+            chosen,
+            reason,
+        };
+        Ok((specs.swap_remove(chosen), choice))
+    }
+
     // ---- measure ------------------------------------------------------------------------------
 
     fn measure(&mut self, plan: &Plan) -> Result<MeasureSummary> {
@@ -748,6 +1062,10 @@ impl Runner {
         let t0 = Instant::now();
         let scene = self.scene_full(plan)?;
         let final_bvh = self.bvh_full(plan, plan.final_which())?;
+        let layout = match plan.layout {
+            Some(_) => Some(self.layout_full(plan)?),
+            None => None,
+        };
         let bvh = &final_bvh.bvh;
         let tris = &scene.triangles;
         let bounds = scene.bounds();
@@ -760,30 +1078,65 @@ impl Runner {
                 bvhlab_trace::primary_rays(&camera, width, height)
             }
             RaySpec::Shadow { width, height } => {
-                // Shadow rays start at the primary hits (thesis 4.4), so trace primary rays first.
+                // Shadow rays start at the primary hits (thesis 4.4), so trace primary rays first
+                // (through the flat BVH also with a layout: every layout finds the same hits).
                 let primary = bvhlab_trace::primary_rays(&camera, width, height);
                 let st = bvhlab_trace::trace(bvh, tris, &primary);
                 let t: Vec<f32> = st.hits.iter().map(|h| h.t).collect();
                 bvhlab_trace::shadow_rays(&primary, &t, camera.light(&bounds))
             }
-            RaySpec::Random { count } => {
-                let c = bounds.center();
-                let r = tris
-                    .iter()
-                    .map(|t| (t.bounds().center() - c).length())
-                    .fold(0.0f32, f32::max);
-                bvhlab_trace::random_rays(&bounds, r, count as usize, RANDOM_SEED)
-            }
+            RaySpec::Random { count } => random_ray_set(&scene, count, RANDOM_SEED),
         };
         let mut seconds = Vec::new();
+        let mut bvh2_seconds = Vec::new();
         let mut first = None;
-        for _ in 0..plan.spec.repeat {
-            let t = Instant::now();
-            let st = bvhlab_trace::trace(bvh, tris, &rays);
-            seconds.push(secs(t));
-            first.get_or_insert(st);
+        for run in 0..plan.spec.repeat {
+            match &layout {
+                None => {
+                    let t = Instant::now();
+                    let st = bvhlab_trace::trace(bvh, tris, &rays);
+                    seconds.push(secs(t));
+                    first.get_or_insert(st);
+                }
+                Some(l) => {
+                    // The bvh2 anchor runs beside the layout on the same rays, alternating which
+                    // goes first, so slowdown compares runs under the same machine conditions.
+                    let mut time_layout = || {
+                        let t = Instant::now();
+                        let st = l.layout.trace(tris, &rays);
+                        seconds.push(secs(t));
+                        first.get_or_insert(st);
+                    };
+                    let mut time_bvh2 = || {
+                        let t = Instant::now();
+                        std::hint::black_box(bvhlab_trace::trace(bvh, tris, &rays));
+                        bvh2_seconds.push(secs(t));
+                    };
+                    if run % 2 == 0 {
+                        time_layout();
+                        time_bvh2();
+                    } else {
+                        time_bvh2();
+                        time_layout();
+                    }
+                }
+            }
         }
         let st = first.ok_or_else(|| Error::internal("repeat = 0"))?;
+        // Accuracy of compression: against the uncompressed layout of the same topology (untimed).
+        let extras = layout.as_ref().map(|l| {
+            match l.layout.uncompressed(bvh, tris) {
+                None => (0.0, 0.0),
+                Some(u) => {
+                    let r = u.trace(tris, &rays);
+                    let n = rays.len().max(1) as f64;
+                    (
+                        (st.total_steps as f64 - r.total_steps as f64) / n,
+                        (st.total_intersections as f64 - r.total_intersections as f64) / n,
+                    )
+                }
+            }
+        });
         let mut files = BTreeMap::new();
         let heatmap = match rays_spec {
             RaySpec::Primary { width, height } => {
@@ -807,6 +1160,11 @@ impl Runner {
             median_seconds: median(&seconds),
             seconds,
             heatmap,
+            layout: layout.as_ref().map(|l| l.summary.layout.clone()),
+            bvh2_median_seconds: layout.as_ref().map(|_| median(&bvh2_seconds)),
+            bvh2_seconds: layout.as_ref().map(|_| bvh2_seconds),
+            extra_box_hits_per_ray: extras.map(|e| e.0),
+            extra_tests_per_ray: extras.map(|e| e.1),
         };
         files.insert(
             "sum".into(),
@@ -867,6 +1225,7 @@ impl Runner {
             Some(_) => Some(self.bvh_summary(&plan, Which::Compact)?),
             None => None,
         };
+        let layout = self.layout_summary(&plan)?;
         let measure = match plan.measure {
             Some(_) => Some(self.measure(&plan)?),
             None => None,
@@ -892,6 +1251,9 @@ impl Runner {
         if let Some(n) = &plan.focus {
             keys.insert("focus".to_string(), n.key.hex());
         }
+        if let Some((n, _)) = &plan.layout {
+            keys.insert("layout".to_string(), n.key.hex());
+        }
         let mut method = self.registry.label(&plan.resolved);
         if let Some(e) = &plan.encoder {
             method.push_str(&format!(" \u{b7} {}", self.registry.encoder_label(e)));
@@ -901,6 +1263,21 @@ impl Runner {
         }
         if spec.compact != "none" {
             method.push_str(&format!(" +{}", spec.compact));
+        }
+        // `auto` keeps its request in the label (scene independent, so plots group its rows); the
+        // layout it picked per scene is in `layout` / `layout_params`.
+        match &plan.layout {
+            Some((_, LayoutRequest::Fixed(l))) if l.params.is_empty() => {
+                method.push_str(&format!(" @{}", l.name))
+            }
+            Some((_, LayoutRequest::Fixed(l))) => {
+                method.push_str(&format!(" @{} {}", l.name, l.params_string()))
+            }
+            Some((_, LayoutRequest::Auto(a))) => method.push_str(&format!(
+                " @auto max_slowdown={},rays={}",
+                a.max_slowdown, a.rays
+            )),
+            None => {}
         }
         let per_ray = |total: u64, rays: u64| {
             if rays == 0 {
@@ -930,7 +1307,10 @@ impl Runner {
             depth: m.depth,
             bytes: m.bytes,
             bytes_per_triangle: m.bytes as f64 / scene.triangles.max(1) as f64,
-            valid: build.valid && optimized.as_ref().is_none_or(|o| o.valid) && fin.valid,
+            valid: build.valid
+                && optimized.as_ref().is_none_or(|o| o.valid)
+                && fin.valid
+                && layout.as_ref().is_none_or(|l| l.valid),
             bvh_hash: fin.bvh_hash.clone(),
             build_seconds: build.median_seconds,
             encoder: plan.encoder.as_ref().map(|e| e.encoder.clone()),
@@ -974,7 +1354,35 @@ impl Runner {
                 .as_ref()
                 .and_then(|x| x.heatmap.as_ref())
                 .map(|h| self.store.root().join(h).to_string_lossy().to_string()),
-            // Filled by the layout stage (issue 5).
+            layout: layout.as_ref().map(|l| l.layout.clone()),
+            layout_params: layout.as_ref().map(|l| l.params.clone()),
+            topology_bytes: layout.as_ref().map(|l| l.memory.topology_bytes),
+            total_bytes: layout.as_ref().map(|l| l.memory.total_bytes),
+            topology_bytes_per_triangle: layout
+                .as_ref()
+                .map(|l| l.memory.topology_bytes as f64 / scene.triangles.max(1) as f64),
+            total_bytes_per_triangle: layout
+                .as_ref()
+                .map(|l| l.memory.total_bytes as f64 / scene.triangles.max(1) as f64),
+            topology_bits_per_node: layout.as_ref().map(|l| l.memory.topology_bits_per_node()),
+            layout_nodes: layout.as_ref().map(|l| l.memory.nodes),
+            chunks: layout.as_ref().map(|l| l.memory.chunks),
+            chunk_fill: layout.as_ref().map(|l| l.memory.chunk_fill),
+            prim_refs: layout.as_ref().map(|l| l.memory.prim_refs),
+            peak_build_bytes: layout.as_ref().map(|l| l.peak_build_bytes),
+            layout_seconds: layout.as_ref().map(|l| l.median_seconds),
+            layout_sah_cost: layout.as_ref().map(|l| l.sah_cost),
+            extra_box_hits_per_ray: measure.as_ref().and_then(|x| x.extra_box_hits_per_ray),
+            extra_tests_per_ray: measure.as_ref().and_then(|x| x.extra_tests_per_ray),
+            bvh2_trace_seconds: measure.as_ref().and_then(|x| x.bvh2_median_seconds),
+            slowdown: measure.as_ref().and_then(|x| {
+                x.bvh2_median_seconds
+                    .filter(|&b| b > 0.0)
+                    .map(|b| x.median_seconds / b)
+            }),
+            layout_choice: layout
+                .as_ref()
+                .and_then(|l| l.choice.as_ref().map(|c| c.reason.clone())),
             ..Default::default()
         };
         row.keys = keys;
@@ -995,4 +1403,31 @@ pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Sen
             Ok(pool.install(f))
         }
     }
+}
+
+/// Random rays (thesis 4.4) on a sphere around the scene box centre enclosing every triangle
+/// centroid.
+fn random_ray_set(scene: &Scene, count: u32, seed: u64) -> Vec<bvhlab_trace::Ray> {
+    let bounds = scene.bounds();
+    let c = bounds.center();
+    let r = scene
+        .triangles
+        .iter()
+        .map(|t| (t.bounds().center() - c).length())
+        .fold(0.0f32, f32::max);
+    bvhlab_trace::random_rays(&bounds, r, count as usize, seed)
+}
+
+/// Rays whose closest hit differs: another triangle, or t off by more than 1e-6 relative.
+fn hit_mismatches(a: &[bvhlab_trace::Hit], b: &[bvhlab_trace::Hit]) -> usize {
+    if a.len() != b.len() {
+        return a.len().max(b.len());
+    }
+    a.iter()
+        .zip(b)
+        .filter(|(x, y)| {
+            let same_t = x.t == y.t || (x.t - y.t).abs() <= 1e-6 * x.t.abs().max(y.t.abs());
+            x.is_hit() != y.is_hit() || (x.is_hit() && !(x.prim == y.prim || same_t))
+        })
+        .count()
 }

@@ -4,11 +4,13 @@
 //! bottom-up builders), `build` (BVH), `optimize` (ibo or Kensler rotations on the built BVH),
 //! `compact` (SAH collapse of the built or optimized BVH; after the optimizer, as Bittner 2013 3.6
 //! orders them), `measure` (ray set traced through the final BVH), `focus` (SAH cost around a
-//! focus box in the final BVH). Bump a stage's version when its implementation changes
+//! focus box in the final BVH), `layout` (the final BVH, or the scene for octrees, stored in a
+//! memory layout of Kilian 2021, traced by measure with its own traversal). Bump a stage's version when its implementation changes
 //! what it produces: its artifacts and everything downstream get new keys.
 use crate::error::{Error, Result};
 use bvhlab_bvh::{Aabb, Bvh, CostParams, Metrics};
-use bvhlab_geom::{LoadError, Scene};
+use bvhlab_geom::{LoadError, Scene, Triangle};
+use bvhlab_layout::{Layout, LayoutSpec, Memory};
 use bvhlab_morton::{EncodeConfig, Encoding};
 use bvhlab_trace::Camera;
 use serde::{Deserialize, Serialize};
@@ -22,8 +24,12 @@ pub const BUILD_VERSION: u32 = 2;
 pub const COMPACT_VERSION: u32 = 1;
 pub const OPTIMIZE_VERSION: u32 = 1;
 /// 2: traversal keeps a popped node whose entry equals the best t within the slab margin (ties).
-pub const MEASURE_VERSION: u32 = 2;
+/// 3: optional layout input (its own traversal, bvh2 anchor timed alternately, extra hits/tests).
+/// 4: ray-triangle t in f64 (far rays could disagree with brute force in f32); axis-parallel rays
+///    on a box plane are inside the slab (were culled).
+pub const MEASURE_VERSION: u32 = 4;
 pub const FOCUS_VERSION: u32 = 1;
+pub const LAYOUT_VERSION: u32 = 1;
 
 /// Stage implementation versions; injectable so tests can simulate a version bump.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -35,6 +41,7 @@ pub struct Versions {
     pub optimize: u32,
     pub measure: u32,
     pub focus: u32,
+    pub layout: u32,
 }
 
 impl Default for Versions {
@@ -47,6 +54,7 @@ impl Default for Versions {
             optimize: OPTIMIZE_VERSION,
             measure: MEASURE_VERSION,
             focus: FOCUS_VERSION,
+            layout: LAYOUT_VERSION,
         }
     }
 }
@@ -64,6 +72,8 @@ pub struct Ops {
     /// `bvhlab_morton::encode_cells`: the config plus the occupation grid's in-cell frame.
     pub encode:
         fn(&[Aabb], &[bvhlab_geom::Vec3], &EncodeConfig, bvhlab_morton::CellFrame) -> Encoding,
+    /// `bvhlab_layout::build`.
+    pub layout: fn(&LayoutSpec, &Bvh, &[Triangle]) -> Result<Layout, String>,
 }
 
 impl Default for Ops {
@@ -75,6 +85,7 @@ impl Default for Ops {
             validate: bvhlab_bvh::validate,
             collapse: bvhlab_bvh::collapse::collapse,
             encode: bvhlab_morton::encode_cells,
+            layout: bvhlab_layout::build,
         }
     }
 }
@@ -231,6 +242,9 @@ pub struct ChainSpec {
     pub repeat: u32,
     /// Focus box: triangles whose centroid lies inside (bounds included) form the focus object.
     pub focus: Option<Aabb>,
+    /// Layout spec `NAME[:k=v,...]` (`bvh2`, `qbvh`, `octree`, `octree1`, `auto`); None: no layout
+    /// stage, measure traces the flat BVH.
+    pub layout: Option<String>,
 }
 
 impl ChainSpec {
@@ -248,6 +262,7 @@ impl ChainSpec {
             camera: None,
             repeat: 5,
             focus: None,
+            layout: None,
         }
     }
 }
@@ -388,6 +403,193 @@ pub struct MeasureSummary {
     pub median_seconds: f64,
     /// Heat map file name relative to the store root, for primary rays.
     pub heatmap: Option<String>,
+    /// With a layout stage: the layout traced (counters and `seconds` are its own traversal's).
+    #[serde(default)]
+    pub layout: Option<String>,
+    /// With a layout stage: bvh2 of the same final BVH on the same rays, each run alternated
+    /// with a run of the layout.
+    #[serde(default)]
+    pub bvh2_seconds: Option<Vec<f64>>,
+    #[serde(default)]
+    pub bvh2_median_seconds: Option<f64>,
+    /// With a layout stage: (layout - uncompressed of the same topology) steps and triangle tests
+    /// per ray (0 when the layout is uncompressed).
+    #[serde(default)]
+    pub extra_box_hits_per_ray: Option<f64>,
+    #[serde(default)]
+    pub extra_tests_per_ray: Option<f64>,
+}
+
+/// A layout request: a layout with its parameters, or the `auto` search (Kilian 2021 layouts; the
+/// chosen one then behaves as if it had been given).
+#[derive(Clone, Debug, PartialEq)]
+pub enum LayoutRequest {
+    Fixed(LayoutSpec),
+    Auto(AutoSpec),
+}
+
+/// `auto:max_slowdown=X,rays=N`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AutoSpec {
+    /// Largest accepted trace-time ratio against bvh2 of the same BVH (bvh2 always qualifies).
+    pub max_slowdown: f64,
+    /// Random rays the candidates are timed on.
+    pub rays: u32,
+}
+
+pub const AUTO_MAX_SLOWDOWN: f64 = 1.25;
+pub const AUTO_RAYS: u32 = 20_000;
+/// Seed of the auto search's ray sample (part of its key through `rays`/the candidate list).
+pub const AUTO_SEED: u64 = 0xa070_1a70;
+/// Timed runs per candidate (each alternated with bvh2); the median is compared.
+pub const AUTO_RUNS: usize = 3;
+
+/// The `auto` search space, kept small (every candidate is built and timed per scene): bvh2; qbvh
+/// with chunk_bytes 64/128 x frame chunk/parent x bits 4/6/8; octree1 in 16-byte chunks filled
+/// breadth-first or densely.
+pub fn auto_candidates() -> Vec<String> {
+    let mut c = vec!["bvh2".to_string()];
+    for chunk in [64, 128] {
+        for frame in ["chunk", "parent"] {
+            for bits in [4, 6, 8] {
+                c.push(format!("qbvh:bits={bits},chunk_bytes={chunk},frame={frame}"));
+            }
+        }
+    }
+    for fill in ["bfs", "dense"] {
+        c.push(format!("octree1:chunk_bytes=16,fill={fill}"));
+    }
+    c
+}
+
+fn split_kv(spec: &str, body: &str) -> Result<BTreeMap<String, String>> {
+    let mut out = BTreeMap::new();
+    for kv in body.split(',') {
+        let (k, v) = kv.split_once('=').ok_or_else(|| {
+            Error::input(format!(
+                "bad layout `{spec}`: `{kv}` is not KEY=VALUE (expected NAME[:k=v,k=v], e.g. qbvh:chunk_bytes=128,frame=parent)"
+            ))
+        })?;
+        let (k, v) = (k.trim(), v.trim());
+        if k.is_empty() || v.is_empty() {
+            return Err(Error::input(format!(
+                "bad layout `{spec}`: empty key or value in `{kv}`"
+            )));
+        }
+        if out.insert(k.to_string(), v.to_string()).is_some() {
+            return Err(Error::input(format!(
+                "bad layout `{spec}`: `{k}` given twice"
+            )));
+        }
+    }
+    Ok(out)
+}
+
+/// Parses `NAME[:k=v,k=v]` (`bvh2`, `qbvh:chunk_bytes=128,frame=parent,bits=6`,
+/// `octree1:chunk_bytes=16`, `auto:max_slowdown=1.3,rays=20000`). Unknown names, parameters and bad
+/// values are input errors; defaults are filled in.
+pub fn parse_layout(spec: &str) -> Result<LayoutRequest> {
+    let spec_t = spec.trim();
+    let (name, body) = match spec_t.split_once(':') {
+        Some((n, b)) => (n.trim(), Some(b)),
+        None => (spec_t, None),
+    };
+    let given = match body {
+        Some(b) => split_kv(spec_t, b)?,
+        None => BTreeMap::new(),
+    };
+    if name != "auto" {
+        return LayoutSpec::parse(name, &given)
+            .map(LayoutRequest::Fixed)
+            .map_err(|e| Error::input(format!("bad layout `{spec_t}`: {e}")));
+    }
+    let mut auto = AutoSpec {
+        max_slowdown: AUTO_MAX_SLOWDOWN,
+        rays: AUTO_RAYS,
+    };
+    for (k, v) in &given {
+        match k.as_str() {
+            "max_slowdown" => match v.parse::<f64>() {
+                Ok(x) if x.is_finite() && x > 0.0 => auto.max_slowdown = x,
+                _ => {
+                    return Err(Error::input(format!(
+                        "bad layout `{spec_t}`: max_slowdown must be a number > 0, got `{v}`"
+                    )))
+                }
+            },
+            "rays" => match v.parse::<u32>() {
+                Ok(n) if (100..=10_000_000).contains(&n) => auto.rays = n,
+                _ => {
+                    return Err(Error::input(format!(
+                        "bad layout `{spec_t}`: rays must be an integer in 100..=10000000, got `{v}`"
+                    )))
+                }
+            },
+            _ => {
+                return Err(Error::input(format!(
+                    "bad layout `{spec_t}`: layout `auto` has no parameter `{k}`; its parameters: max_slowdown, rays"
+                )))
+            }
+        }
+    }
+    Ok(LayoutRequest::Auto(auto))
+}
+
+/// One candidate of the auto search as measured.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AutoCandidate {
+    pub layout: String,
+    pub params: String,
+    pub total_bytes: u64,
+    pub total_bytes_per_triangle: f64,
+    /// Candidate and bvh2 times of the alternated runs.
+    pub seconds: Vec<f64>,
+    pub bvh2_seconds: Vec<f64>,
+    /// median(seconds) / median(bvh2_seconds).
+    pub slowdown: f64,
+    /// Why the candidate could not be used (build error, invalid, hits differing from bvh2).
+    pub error: Option<String>,
+}
+
+/// The auto search's decision, stored with the chosen layout (machine dependent: it depends on
+/// timings).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AutoChoice {
+    pub max_slowdown: f64,
+    pub rays: u32,
+    pub candidates: Vec<AutoCandidate>,
+    /// Index into `candidates`.
+    pub chosen: usize,
+    /// Human-readable reason (the row's `layout_choice`).
+    pub reason: String,
+}
+
+/// Summary of the layout stage (`layout/<key>.sum`): what a row needs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LayoutSummary {
+    /// Layout name and canonical parameters (with `auto`: the chosen ones).
+    pub layout: String,
+    pub params: String,
+    pub memory: Memory,
+    /// Seconds of each of the `repeat` builds.
+    pub seconds: Vec<f64>,
+    pub median_seconds: f64,
+    /// `Layout::sah_cost` with the chain's c_t / c_i.
+    pub sah_cost: f64,
+    pub valid: bool,
+    pub invalid_reason: Option<String>,
+    /// Heap growth of the first build (process-wide counting allocator, see `memtrack`).
+    pub peak_build_bytes: u64,
+    /// blake3 of the encoded layout.
+    pub layout_hash: String,
+    pub choice: Option<AutoChoice>,
+}
+
+/// Full artifact of the layout stage (`layout/<key>.bin`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LayoutArtifact {
+    pub layout: Layout,
+    pub summary: LayoutSummary,
 }
 
 pub fn median(v: &[f64]) -> f64 {
@@ -438,6 +640,58 @@ mod tests {
         ] {
             let e = RaySpec::parse(bad).unwrap_err();
             assert_eq!(e.exit_code(), 2, "{bad}");
+        }
+    }
+
+    #[test]
+    fn layout_specs() {
+        let LayoutRequest::Fixed(l) = parse_layout("bvh2").unwrap() else {
+            panic!()
+        };
+        assert_eq!((l.name.as_str(), l.params.len()), ("bvh2", 0));
+        let LayoutRequest::Fixed(q) = parse_layout(" qbvh: frame=parent , chunk_bytes=128").unwrap()
+        else {
+            panic!()
+        };
+        assert_eq!(q.params["frame"], "parent");
+        assert_eq!(q.params["chunk_bytes"], "128");
+        // Defaults filled in: explicit defaults and omitted ones give the same canonical params.
+        let LayoutRequest::Fixed(d) = parse_layout("qbvh").unwrap() else {
+            panic!()
+        };
+        let all = format!("qbvh:{}", d.params_string());
+        assert_eq!(parse_layout(&all).unwrap(), LayoutRequest::Fixed(d));
+        assert_eq!(
+            parse_layout("auto").unwrap(),
+            LayoutRequest::Auto(AutoSpec {
+                max_slowdown: AUTO_MAX_SLOWDOWN,
+                rays: AUTO_RAYS
+            })
+        );
+        assert_eq!(
+            parse_layout("auto:max_slowdown=1.5,rays=500").unwrap(),
+            LayoutRequest::Auto(AutoSpec {
+                max_slowdown: 1.5,
+                rays: 500
+            })
+        );
+        for (bad, needle) in [
+            ("zip", "unknown layout"),
+            ("qbvh:chunk_bytes", "KEY=VALUE"),
+            ("qbvh:chunk_bytes=64,chunk_bytes=128", "twice"),
+            ("qbvh:nope=1", "nope"),
+            ("bvh2:bits=4", "bits"),
+            ("auto:max_slowdown=0", "max_slowdown"),
+            ("auto:max_slowdown=nan", "max_slowdown"),
+            ("auto:rays=5", "rays"),
+            ("auto:chunk_bytes=64", "chunk_bytes"),
+        ] {
+            let e = parse_layout(bad).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{bad}");
+            assert!(e.message().contains(needle), "{bad}: {e}");
+        }
+        for c in auto_candidates() {
+            assert!(matches!(parse_layout(&c), Ok(LayoutRequest::Fixed(_))), "{c}");
         }
     }
 

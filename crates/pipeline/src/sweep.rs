@@ -37,12 +37,16 @@ pub fn sweep(exp: &Experiment, runner: &mut Runner, progress: bool) -> Result<Sw
         }
         last_scene = Some(&c.scene);
         bar.set_message(format!(
-            "{} {}{}{}",
+            "{} {}{}{}{}",
             crate::stages::scene_name(&c.scene),
             c.build,
             c.encode
                 .as_ref()
                 .map(|e| format!(" {e}"))
+                .unwrap_or_default(),
+            c.layout
+                .as_ref()
+                .map(|l| format!(" @{l}"))
                 .unwrap_or_default(),
             c.rays
                 .map(|r| format!(" {}", r.canonical()))

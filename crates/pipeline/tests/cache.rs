@@ -4,6 +4,7 @@
 use bvhlab_build::SortedCodes;
 use bvhlab_bvh::{Aabb, Bvh, CostParams, Metrics, Node, Vec3};
 use bvhlab_geom::{LoadError, Scene, Triangle};
+use bvhlab_layout::{bvh2::Bvh2, Layout, LayoutSpec};
 use bvhlab_morton::{AutoFor, Bits, EncodeConfig, Encoding, Scheme};
 use bvhlab_pipeline::registry::{
     BuilderInfo, Kind, OptimizerInfo, ParamSpec, Resolved, ResolvedOptimizer,
@@ -118,6 +119,24 @@ fn test_code_build(boxes: &[Aabb], _: &[Vec3], s: Option<&SortedCodes>, _: &Reso
     }
 }
 
+/// Layout double: every layout is stored as a bvh2 (real flat BVH, real traversal) of the input
+/// BVH, or for the scene-only layouts (octrees) of one leaf over all triangles.
+fn test_layout(spec: &LayoutSpec, bvh: &Bvh, tris: &[Triangle]) -> Result<Layout, String> {
+    if bvhlab_layout::uses_bvh(&spec.name) {
+        assert!(!bvh.nodes.is_empty(), "BVH layouts get the final BVH");
+        return Ok(Layout::Bvh2(Bvh2::build(bvh)));
+    }
+    assert!(bvh.nodes.is_empty(), "octrees are built from the triangles alone");
+    let mut b = Aabb::EMPTY;
+    for t in tris {
+        b.grow(&t.bounds());
+    }
+    Ok(Layout::Bvh2(Bvh2::build(&Bvh {
+        nodes: vec![Node::leaf(b, 0, tris.len() as u32)],
+        prim_indices: (0..tris.len() as u32).collect(),
+    })))
+}
+
 fn test_metrics(b: &Bvh, cost: CostParams) -> Metrics {
     let leaves = b.nodes.iter().filter(|n| n.is_leaf()).count() as u64;
     Metrics {
@@ -144,6 +163,7 @@ fn test_runner(root: &Path, versions: Versions) -> Runner {
             b
         },
         encode: test_encode,
+        layout: test_layout,
     };
     let code_builder = |name, auto| BuilderInfo {
         codes: Some(auto),
@@ -848,4 +868,155 @@ fn optimize_stage_is_cached_and_keyed() {
     bad.optimize = Some("annealing".into());
     let e = r.run_chain(&bad, "t").unwrap_err();
     assert!(e.message().contains("valid optimizers: test-opt"), "{e}");
+}
+
+// ---- layout stage -------------------------------------------------------------------------------
+
+fn layout_chain(builder_bins: &str, layout: &str, rays: bool) -> ChainSpec {
+    let mut c = ChainSpec::new("gen:grid:n=60", "test-median");
+    c.params.insert("bins".into(), builder_bins.into());
+    c.layout = Some(layout.into());
+    c.rays = rays.then_some(bvhlab_pipeline::RaySpec::Random { count: 200 });
+    c.repeat = 3;
+    c
+}
+
+#[test]
+fn layout_keys_follow_name_params_and_inputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let ch = vec![
+        layout_chain("4", "bvh2", false),
+        layout_chain("4", "qbvh", false),
+        layout_chain("4", "qbvh:chunk_bytes=64", false), // the default, spelled out
+        layout_chain("4", "qbvh:chunk_bytes=128", false),
+        layout_chain("4", "qbvh:frame=parent", false),
+        layout_chain("8", "qbvh", false), // another BVH
+        layout_chain("4", "octree", false),
+        layout_chain("8", "octree", false), // octrees ignore the BVH: same node
+        layout_chain("4", "octree1:chunk_bytes=32", false),
+    ];
+    let (rows, c) = run_all(dir.path(), Versions::default(), &ch);
+    let k: Vec<&str> = rows.iter().map(|r| r.keys["layout"].as_str()).collect();
+    assert_eq!(k[1], k[2], "explicit default shares the key");
+    assert_eq!(k[6], k[7], "octree key independent of the builder");
+    let mut distinct = k.clone();
+    distinct.sort();
+    distinct.dedup();
+    assert_eq!(distinct.len(), 7);
+    assert_eq!(stage(&c, "layout"), (7, 0));
+    assert_eq!(stage(&c, "build"), (2, 0));
+    // The octree node's manifest lists the scene as its only input.
+    let store = Store::open(dir.path()).unwrap();
+    let m = store
+        .read_manifest("layout", &Key::from_hex(k[6]).unwrap())
+        .unwrap();
+    assert_eq!(m.inputs, vec![format!("load:{}", rows[6].keys["load"])]);
+    assert_eq!(m.params["layout"], "octree");
+    let m = store
+        .read_manifest("layout", &Key::from_hex(k[1]).unwrap())
+        .unwrap();
+    assert!(m.inputs.contains(&format!("build:{}", rows[1].keys["build"])));
+    // Row fields.
+    let r = &rows[0];
+    assert_eq!(r.layout.as_deref(), Some("bvh2"));
+    assert_eq!(r.layout_params.as_deref(), Some(""));
+    assert_eq!(r.topology_bytes, Some(32 * (r.inner_nodes + r.leaves)));
+    assert_eq!(r.total_bytes, Some(32 * (r.inner_nodes + r.leaves) + 4 * 60));
+    assert_eq!(r.layout_nodes, Some(r.inner_nodes + r.leaves));
+    assert_eq!(r.topology_bits_per_node, Some(256.0));
+    assert_eq!(r.prim_refs, Some(60));
+    assert_eq!((r.chunks, r.chunk_fill), (Some(0), Some(0.0)));
+    assert!(r.layout_seconds.is_some() && r.peak_build_bytes.is_some());
+    assert!(r.valid);
+    assert_eq!(r.slowdown, None, "no rays, no trace");
+    assert!(r.method.ends_with(" @bvh2"), "{}", r.method);
+    assert_eq!(
+        rows[3].layout_params.as_deref(),
+        Some("bits=8,chunk_bytes=128,frame=chunk")
+    );
+    assert!(
+        rows[3].method.ends_with(" @qbvh bits=8,chunk_bytes=128,frame=chunk"),
+        "{}",
+        rows[3].method
+    );
+    // Warm: nothing computed, rows identical.
+    let (warm, c) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!(c.computed, 0);
+    assert_eq!(warm, rows);
+}
+
+#[test]
+fn layout_with_rays_warm_lost_bin_and_version_bump() {
+    let dir = tempfile::tempdir().unwrap();
+    let ch = vec![
+        layout_chain("4", "bvh2", true),
+        layout_chain("4", "qbvh:bits=6", true),
+    ];
+    let (rows, c) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!(
+        (stage(&c, "layout"), stage(&c, "measure")),
+        ((2, 0), (2, 0))
+    );
+    let r = &rows[0];
+    assert!(r.slowdown.unwrap() > 0.0 && r.bvh2_trace_seconds.unwrap() > 0.0);
+    assert_eq!(r.extra_box_hits_per_ray, Some(0.0));
+    assert_eq!(r.extra_tests_per_ray, Some(0.0));
+    assert_ne!(rows[0].keys["measure"], rows[1].keys["measure"]);
+    // The same chain without a layout has another measure node (and no layout fields).
+    let mut plain = layout_chain("4", "bvh2", true);
+    plain.layout = None;
+    let (p, _) = run_all(dir.path(), Versions::default(), &[plain]);
+    assert_ne!(p[0].keys["measure"], rows[0].keys["measure"]);
+    assert!(p[0].layout.is_none() && p[0].slowdown.is_none() && !p[0].keys.contains_key("layout"));
+    assert_eq!(p[0].traversal_steps_per_ray, r.traversal_steps_per_ray);
+
+    // Warm: only summaries are read.
+    let (warm, c) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!(c.computed, 0);
+    assert_eq!(warm, rows);
+
+    // The layout's full artifact lost and the measure summary gone: measure needs the layout,
+    // so it is rebuilt (the summary was still readable: counted once, as computed).
+    let store = Store::open(dir.path()).unwrap();
+    let lk = Key::from_hex(&rows[0].keys["layout"]).unwrap();
+    let mk = Key::from_hex(&rows[0].keys["measure"]).unwrap();
+    std::fs::remove_file(store.path("layout", &lk, "bin")).unwrap();
+    std::fs::remove_file(store.path("measure", &mk, "json")).unwrap();
+    let (again, c) = run_all(dir.path(), Versions::default(), &ch);
+    assert_eq!(
+        (stage(&c, "layout"), stage(&c, "measure"), stage(&c, "build")),
+        ((1, 1), (1, 1), (0, 1))
+    );
+    assert!(store.path("layout", &lk, "bin").is_file());
+    assert_eq!(again[0].layout_params, rows[0].layout_params);
+    assert_eq!(again[0].hits, rows[0].hits);
+
+    // Bumping the layout version recomputes layout and measure only.
+    let v = Versions {
+        layout: Versions::default().layout + 1,
+        ..Versions::default()
+    };
+    let (_, c) = run_all(dir.path(), v, &ch);
+    assert_eq!(
+        (
+            stage(&c, "load"),
+            stage(&c, "build"),
+            stage(&c, "layout"),
+            stage(&c, "measure")
+        ),
+        ((0, 1), (0, 1), (2, 0), (2, 0))
+    );
+}
+
+#[test]
+fn layout_input_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = test_runner(dir.path(), Versions::default());
+    for bad in ["zip", "qbvh:chunk_bytes", "bvh2:bits=8", "auto:max_slowdown=0"] {
+        let e = r
+            .run_chain(&layout_chain("4", bad, false), "t")
+            .unwrap_err();
+        assert_eq!(e.exit_code(), 2, "{bad}: {e}");
+    }
+    assert_eq!(r.counts.computed, 0, "nothing runs for a bad spec");
 }

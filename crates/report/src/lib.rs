@@ -5,6 +5,7 @@ pub mod convergence;
 pub mod frame;
 mod fsutil;
 mod html;
+pub mod layouts;
 mod optimization;
 pub mod plots;
 pub mod reference;
@@ -165,6 +166,8 @@ pub fn write_report(
         &mut |fig, stem, title, problems| plot(fig, stem, title, problems),
         &mut problems,
     );
+    let layouts_section =
+        layouts::section(rows, &mut |fig, stem, title, problems| plot(fig, stem, title, problems), &mut problems);
     let mut reference_plots = Vec::new();
     if let Some(Ok(rep)) = &reference {
         for metric in unique(rep.comparisons.iter().map(|c| c.metric.as_str())) {
@@ -215,6 +218,7 @@ pub fn write_report(
     ];
     let mut sections = sections;
     sections.extend(optimization_section);
+    sections.extend(layouts_section);
     sections.extend([
         Section {
             id: "flags",

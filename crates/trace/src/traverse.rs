@@ -48,9 +48,16 @@ pub struct TraceStats {
 /// Möller-Trumbore ray-triangle test (Möller and Trumbore 1997). Returns the hit distance `t`
 /// (not yet range-checked) or NaN/inf-free `None` on a miss. Degenerate triangles (det == 0) and
 /// rays lying in the triangle's plane miss. Comparisons are written so that NaN means "miss".
+///
+/// Evaluated in f64 (the f32 inputs convert exactly; products of two f32 are exact in f64): in f32
+/// the computed t of a ray starting far from a small triangle (a far outlier, a huge scene seen
+/// from its edge) is off by several ulps, more than the slab test's margin (`SLAB_ROBUST`), so a
+/// traversal could cull the box of a triangle whose computed t is the smallest and disagree with
+/// brute force. In f64, t is within about one f32 ulp of the exact distance, inside that margin.
 #[inline(always)]
 pub fn intersect_triangle(origin: Vec3, dir: Vec3, tri: &Triangle) -> Option<f32> {
-    let [v0, v1, v2] = tri.v;
+    let [v0, v1, v2] = tri.v.map(|v| v.as_dvec3());
+    let (origin, dir) = (origin.as_dvec3(), dir.as_dvec3());
     let e1 = v1 - v0;
     let e2 = v2 - v0;
     let p = dir.cross(e2);
@@ -69,7 +76,7 @@ pub fn intersect_triangle(origin: Vec3, dir: Vec3, tri: &Triangle) -> Option<f32
     if !(v >= 0.0 && u + v <= 1.0) {
         return None;
     }
-    Some(e2.dot(q) * inv_det)
+    Some((e2.dot(q) * inv_det) as f32)
 }
 
 /// The shared acceptance rule: `t` in (0, best.t], closer wins, exact ties go to the lower index.
@@ -86,6 +93,9 @@ pub fn accept(t: f32, prim: u32, best: &mut Hit) {
 pub struct RayBox {
     pub origin: Vec3,
     pub inv_dir: Vec3,
+    /// Some direction component is zero (the ray is parallel to a slab): `hit` tests that axis
+    /// by the origin's position instead of the products.
+    parallel: bool,
 }
 
 /// 1 + 2 * gamma(3) with gamma(n) = n*eps / (1 - n*eps), eps = 2^-24: the factor that makes the
@@ -97,9 +107,11 @@ impl RayBox {
     #[inline(always)]
     pub fn new(ray: &Ray) -> RayBox {
         // A zero direction component would give an infinite inverse, and (bound - origin) * inf
-        // is NaN when the origin lies exactly on the slab plane. A huge finite inverse instead
-        // gives 0 there (the ray runs inside the plane: conservatively "inside") and +-huge/inf
-        // elsewhere, which is the right answer for a parallel ray.
+        // is NaN when the origin lies exactly on the slab plane. A huge finite inverse avoids the
+        // NaN; the products of such an axis are then ignored (`parallel`): a parallel ray is inside
+        // the slab for all t when min <= origin <= max, else never. (The products alone are wrong
+        // when the origin lies on the slab's far plane, 0 * huge = 0 ends the interval at t = 0,
+        // or a tiny distance from it.)
         let inv = |d: f32| {
             let i = 1.0 / d;
             if i.is_finite() {
@@ -111,6 +123,7 @@ impl RayBox {
         RayBox {
             origin: ray.origin,
             inv_dir: Vec3::new(inv(ray.dir.x), inv(ray.dir.y), inv(ray.dir.z)),
+            parallel: ray.dir.x == 0.0 || ray.dir.y == 0.0 || ray.dir.z == 0.0,
         }
     }
 
@@ -137,12 +150,27 @@ impl RayBox {
             }
         }
         let (o, i) = (self.origin, self.inv_dir);
-        let x0 = (b.min.x - o.x) * i.x;
-        let x1 = (b.max.x - o.x) * i.x;
-        let y0 = (b.min.y - o.y) * i.y;
-        let y1 = (b.max.y - o.y) * i.y;
-        let z0 = (b.min.z - o.z) * i.z;
-        let z1 = (b.max.z - o.z) * i.z;
+        let (mut x0, mut x1) = ((b.min.x - o.x) * i.x, (b.max.x - o.x) * i.x);
+        let (mut y0, mut y1) = ((b.min.y - o.y) * i.y, (b.max.y - o.y) * i.y);
+        let (mut z0, mut z1) = ((b.min.z - o.z) * i.z, (b.max.z - o.z) * i.z);
+        if self.parallel {
+            // Rare (axis-parallel rays): a zero-direction axis constrains nothing or everything.
+            let axis = |lo: f32, hi: f32, o: f32, inv: f32, t0: &mut f32, t1: &mut f32| {
+                if inv.abs() == f32::MAX {
+                    if !(lo <= o && o <= hi) {
+                        return false;
+                    }
+                    (*t0, *t1) = (f32::NEG_INFINITY, f32::INFINITY);
+                }
+                true
+            };
+            if !(axis(b.min.x, b.max.x, o.x, i.x, &mut x0, &mut x1)
+                && axis(b.min.y, b.max.y, o.y, i.y, &mut y0, &mut y1)
+                && axis(b.min.z, b.max.z, o.z, i.z, &mut z0, &mut z1))
+            {
+                return None;
+            }
+        }
         let near = mx(mx(mn(x0, x1), mn(y0, y1)), mx(mn(z0, z1), 0.0));
         let far = mn(mn(mx(x0, x1), mx(y0, y1)), mn(mx(z0, z1), tmax)) * SLAB_ROBUST;
         if near <= far {

@@ -1,0 +1,1268 @@
+//! The "compressed layouts" section (Kilian 2021, chapters 4-6), as plain functions over result
+//! rows plus one figure type: per scene (and chain and ray set) bytes per triangle against trace
+//! time, slowdown and extra triangle tests, one curve per layout family with the Pareto front; the
+//! memory/chunk table (Kilian figures 4.16, 5.4, 6.3, 6.5), the speed/accuracy table, the findings
+//! table (Kilian's qualitative claims checked per scene) and the `layout=auto` choices.
+use crate::analysis::{method_key, parse_params};
+use crate::html::{escape, Section};
+use crate::plots::pareto::pareto_front;
+use crate::plots::{color, err, fmt_num, Figure};
+use crate::sweeps::PlotFn;
+use bvhlab_pipeline::ResultRow;
+use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use std::collections::BTreeMap;
+use std::fmt::Write;
+
+/// Two timings within this many percent are a tie: our medians of 5 runs on a shared machine do
+/// not resolve smaller differences, so a finding is neither confirmed nor contradicted by them.
+pub const TIE_PERCENT: f64 = 2.0;
+/// "Almost as fast" (Kilian 6.3: octree1's increase over the octree "only very small"): at most
+/// this ratio of trace times.
+pub const ALMOST_AS_FAST: f64 = 1.15;
+/// Issue 5's targets: qbvh within 1.5x of bvh2, qbvh topology at most 0.5x bvh2's, octree1 at most
+/// 2 bits per node in 16-byte chunks.
+pub const QBVH_TARGET_SLOWDOWN: f64 = 1.5;
+pub const QBVH_TOPOLOGY_RATIO: f64 = 0.5;
+pub const OCTREE1_BITS_16: f64 = 2.0;
+
+/// Kilian's best-case topology bits per node (full chunks), with the section that states it.
+/// qbvh: 5.2.1 (chunk bits plus the 48-bit key and 8-bit axis per node, so only for bits=8);
+/// octree1: 4.2.2 (the text's "512/488" for 64 B is a typo for 512/448 = 8/7); bvh2: 5.1 (256);
+/// octree: 4.1 (32-bit nodes).
+pub fn kilian_bits_per_node(layout: &str, params: &BTreeMap<String, String>) -> Option<(f64, &'static str)> {
+    let chunk = params.get("chunk_bytes").map(String::as_str);
+    match layout {
+        "bvh2" => Some((256.0, "5.1")),
+        "octree" => Some((32.0, "4.1")),
+        "qbvh" if params.get("bits").is_none_or(|b| b == "8") => match chunk {
+            Some("64") => Some((58.67, "5.2.1, best case")),
+            Some("128") => Some((57.45, "5.2.1, best case")),
+            _ => None,
+        },
+        "octree1" => match chunk {
+            Some("16") => Some((2.0, "4.2.2, best case")),
+            Some("32") => Some((1.33, "4.2.2, best case")),
+            Some("64") => Some((1.14, "4.2.2, best case")),
+            Some("128") => Some((1.07, "4.2.2, best case")),
+            _ => None,
+        },
+        _ => None,
+    }
+}
+
+/// Kilian's stated chunk fill rates: octree1 about 30% (7, from 6.3), qbvh below 10% (5.2.3: the
+/// highest, 64-byte chunks on Measure-one, "just under 10%"; 128 B lower).
+pub fn kilian_fill(layout: &str) -> Option<&'static str> {
+    match layout {
+        "octree1" => Some("~30% (ch. 7, fig. 6.3)"),
+        "qbvh" => Some("&lt; 10% (5.2.3, fig. 5.4)"),
+        _ => None,
+    }
+}
+
+/// One layout configuration measured on one case.
+#[derive(Clone, Debug)]
+pub struct Point<'a> {
+    pub layout: String,
+    pub params: BTreeMap<String, String>,
+    /// Short label: layout name and the parameters that vary in the experiment (`qbvh 64B frame=parent`).
+    pub label: String,
+    pub row: &'a ResultRow,
+}
+
+/// The layout rows of one (scene, chain, ray set).
+#[derive(Clone, Debug)]
+pub struct Case<'a> {
+    /// Display name: the scene, plus chain and ray set where the experiment has several.
+    pub label: String,
+    pub scene_name: String,
+    pub rays_kind: Option<String>,
+    pub chain: String,
+    /// One point per layout configuration (first row wins), `auto` rows excluded.
+    pub points: Vec<Point<'a>>,
+    /// `layout=auto` rows of this case.
+    pub auto: Vec<&'a ResultRow>,
+}
+
+fn is_auto(r: &ResultRow) -> bool {
+    r.layout_choice.is_some() || r.layout.as_deref() == Some("auto")
+}
+
+/// Display order of parameter keys in labels.
+const KEY_ORDER: [&str; 4] = ["chunk_bytes", "frame", "bits", "fill"];
+
+fn key_rank(k: &str) -> usize {
+    KEY_ORDER.iter().position(|x| *x == k).unwrap_or(KEY_ORDER.len())
+}
+
+fn short(k: &str, v: &str) -> String {
+    match k {
+        "chunk_bytes" => format!("{v}B"),
+        "bits" => format!("{v}bit"),
+        "fill" => v.to_string(),
+        _ => format!("{k}={v}"),
+    }
+}
+
+/// Label of a configuration: the name and the given keys, in KEY_ORDER.
+fn label_of(layout: &str, params: &BTreeMap<String, String>, keys: &[String]) -> String {
+    let mut ks: Vec<&String> = keys.iter().filter(|k| params.contains_key(*k)).collect();
+    ks.sort_by_key(|k| (key_rank(k), (*k).clone()));
+    let mut s = layout.to_string();
+    for k in ks {
+        s.push(' ');
+        s.push_str(&short(k, &params[k]));
+    }
+    s
+}
+
+/// Per layout name, the parameter keys whose values differ among that layout's rows.
+fn varying_keys(rows: &[&ResultRow]) -> BTreeMap<String, Vec<String>> {
+    let mut seen: BTreeMap<String, BTreeMap<String, Vec<String>>> = BTreeMap::new();
+    for r in rows {
+        let Some(l) = r.layout.as_deref() else { continue };
+        let m = seen.entry(l.to_string()).or_default();
+        let p = parse_params(r.layout_params.as_deref().unwrap_or(""));
+        for (k, v) in &p {
+            let vs = m.entry(k.clone()).or_default();
+            if !vs.contains(v) {
+                vs.push(v.clone());
+            }
+        }
+    }
+    // A key some rows lack also varies (a missing key is its default, unknown here).
+    let mut out = BTreeMap::new();
+    for (l, m) in seen {
+        let n_rows = rows.iter().filter(|r| r.layout.as_deref() == Some(l.as_str())).count();
+        let keys = m
+            .into_iter()
+            .filter(|(k, vs)| {
+                vs.len() > 1
+                    || rows
+                        .iter()
+                        .filter(|r| r.layout.as_deref() == Some(l.as_str()))
+                        .filter(|r| parse_params(r.layout_params.as_deref().unwrap_or("")).contains_key(k))
+                        .count()
+                        < n_rows
+            })
+            .map(|(k, _)| k)
+            .collect();
+        out.insert(l, keys);
+    }
+    out
+}
+
+/// Groups every row with a layout into cases, in first-appearance order.
+pub fn cases(rows: &[ResultRow]) -> Vec<Case<'_>> {
+    let lrows: Vec<&ResultRow> = rows.iter().filter(|r| r.layout.is_some()).collect();
+    let varying = varying_keys(&lrows.iter().copied().filter(|r| !is_auto(r)).collect::<Vec<_>>());
+    let chains: Vec<String> = uniq(lrows.iter().map(|r| method_key(r)));
+    let kinds: Vec<Option<String>> = uniq(lrows.iter().map(|r| r.rays_kind.clone()));
+    let mut out: Vec<Case> = Vec::new();
+    for r in &lrows {
+        let chain = method_key(r);
+        let idx = match out
+            .iter()
+            .position(|c| c.scene_name == r.scene_name && c.chain == chain && c.rays_kind == r.rays_kind)
+        {
+            Some(i) => i,
+            None => {
+                let mut label = r.scene_name.clone();
+                if chains.len() > 1 {
+                    label.push_str(&format!(" · {} {}", r.builder, r.build_params));
+                    if r.compact != "none" {
+                        label.push_str(&format!(" +{}", r.compact));
+                    }
+                }
+                if kinds.len() > 1 {
+                    label.push_str(&format!(" · {}", r.rays_kind.as_deref().unwrap_or("no rays")));
+                }
+                out.push(Case {
+                    label,
+                    scene_name: r.scene_name.clone(),
+                    rays_kind: r.rays_kind.clone(),
+                    chain,
+                    points: Vec::new(),
+                    auto: Vec::new(),
+                });
+                out.len() - 1
+            }
+        };
+        let case = &mut out[idx];
+        if is_auto(r) {
+            case.auto.push(r);
+            continue;
+        }
+        let layout = r.layout.clone().unwrap_or_default();
+        let params = parse_params(r.layout_params.as_deref().unwrap_or(""));
+        if case.points.iter().any(|p| p.layout == layout && p.params == params) {
+            continue;
+        }
+        let keys = varying.get(&layout).cloned().unwrap_or_default();
+        case.points.push(Point { label: label_of(&layout, &params, &keys), layout, params, row: r });
+    }
+    out
+}
+
+fn uniq<T: PartialEq>(it: impl Iterator<Item = T>) -> Vec<T> {
+    let mut v = Vec::new();
+    for x in it {
+        if !v.contains(&x) {
+            v.push(x);
+        }
+    }
+    v
+}
+
+/// What a plot axis shows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Metric {
+    TopologyBytesPerTriangle,
+    TotalBytesPerTriangle,
+    TraceSeconds,
+    Slowdown,
+    ExtraTestsPerRay,
+    ExtraBoxHitsPerRay,
+}
+
+impl Metric {
+    pub fn of(self, r: &ResultRow) -> Option<f64> {
+        let v = match self {
+            Metric::TopologyBytesPerTriangle => r.topology_bytes_per_triangle,
+            Metric::TotalBytesPerTriangle => r.total_bytes_per_triangle,
+            Metric::TraceSeconds => r.trace_seconds,
+            Metric::Slowdown => r.slowdown,
+            Metric::ExtraTestsPerRay => r.extra_tests_per_ray,
+            Metric::ExtraBoxHitsPerRay => r.extra_box_hits_per_ray,
+        };
+        v.filter(|x| x.is_finite())
+    }
+
+    pub fn desc(self) -> &'static str {
+        match self {
+            Metric::TopologyBytesPerTriangle => "topology bytes / triangle",
+            Metric::TotalBytesPerTriangle => "total bytes / triangle",
+            Metric::TraceSeconds => "trace time [s]",
+            Metric::Slowdown => "slowdown vs bvh2",
+            Metric::ExtraTestsPerRay => "extra triangle tests / ray",
+            Metric::ExtraBoxHitsPerRay => "extra box hits / ray",
+        }
+    }
+}
+
+/// Labels of the case's points on the Pareto front of (x, y), both minimized, in increasing x.
+pub fn front(case: &Case, x: Metric, y: Metric) -> Vec<String> {
+    let pts: Vec<(f64, f64)> = case
+        .points
+        .iter()
+        .map(|p| (x.of(p.row).unwrap_or(f64::NAN), y.of(p.row).unwrap_or(f64::NAN)))
+        .collect();
+    pareto_front(&pts).into_iter().map(|i| case.points[i].label.clone()).collect()
+}
+
+/// A family curve: one layout with all parameters fixed but one (`sweep`), or a single point.
+#[derive(Clone, Debug)]
+pub struct Family {
+    pub label: String,
+    /// Indices into `case.points`, ordered by the swept parameter.
+    pub members: Vec<usize>,
+}
+
+fn num_or_str(v: &str) -> (f64, String) {
+    (v.parse::<f64>().unwrap_or(f64::INFINITY), v.to_string())
+}
+
+/// Curves of a case: per layout, for each parameter (chunk_bytes first), the groups of points that
+/// differ only in it (two or more points); points in no such group are single-point families.
+pub fn families(case: &Case) -> Vec<Family> {
+    let mut out = Vec::new();
+    let layouts = uniq(case.points.iter().map(|p| p.layout.clone()));
+    for l in &layouts {
+        let idx: Vec<usize> = (0..case.points.len()).filter(|&i| case.points[i].layout == *l).collect();
+        let mut keys: Vec<String> = uniq(idx.iter().flat_map(|&i| case.points[i].params.keys().cloned()));
+        keys.sort_by_key(|k| (key_rank(k), k.clone()));
+        let mut covered = vec![false; case.points.len()];
+        for k in &keys {
+            let mut groups: Vec<(BTreeMap<String, String>, Vec<usize>)> = Vec::new();
+            for &i in &idx {
+                let mut rest = case.points[i].params.clone();
+                if rest.remove(k).is_none() {
+                    continue;
+                }
+                match groups.iter_mut().find(|g| g.0 == rest) {
+                    Some(g) => g.1.push(i),
+                    None => groups.push((rest, vec![i])),
+                }
+            }
+            for (rest, mut members) in groups {
+                if members.len() < 2 {
+                    continue;
+                }
+                members.sort_by(|&a, &b| {
+                    let (x, y) = (num_or_str(&case.points[a].params[k]), num_or_str(&case.points[b].params[k]));
+                    x.0.total_cmp(&y.0).then(x.1.cmp(&y.1))
+                });
+                for &m in &members {
+                    covered[m] = true;
+                }
+                // Label: the fixed parameters that vary elsewhere, then the swept one.
+                let shown: Vec<String> = rest
+                    .keys()
+                    .filter(|rk| {
+                        idx.iter().any(|&i| case.points[i].params.get(*rk) != rest.get(*rk))
+                    })
+                    .cloned()
+                    .collect();
+                let base = label_of(l, &rest, &shown);
+                let swept = if k == "chunk_bytes" { "chunk size".to_string() } else { k.clone() };
+                out.push(Family { label: format!("{base} (by {swept})"), members });
+            }
+        }
+        for &i in &idx {
+            if !covered[i] {
+                out.push(Family { label: case.points[i].label.clone(), members: vec![i] });
+            }
+        }
+    }
+    out
+}
+
+// ---------------------------------------------------------------------------------------------
+// Figure
+
+pub struct Series {
+    pub label: String,
+    pub color_index: usize,
+    /// (x, y, point label)
+    pub points: Vec<(f64, f64, String)>,
+}
+
+pub struct ScatterPanel {
+    pub title: String,
+    pub x_desc: String,
+    pub y_desc: String,
+    pub series: Vec<Series>,
+}
+
+/// Panels of bytes against a cost, one line per family; Pareto front (ringed points, black
+/// line) over every point of the panel.
+pub struct LayoutFigure {
+    pub caption: String,
+    pub panels: Vec<ScatterPanel>,
+}
+
+const LEGEND_ROW: i32 = 17;
+const LEGEND_COLS: usize = 3;
+
+impl LayoutFigure {
+    fn legend(&self) -> Vec<(String, usize)> {
+        let mut v: Vec<(String, usize)> = Vec::new();
+        for s in self.panels.iter().flat_map(|p| p.series.iter()) {
+            if !v.iter().any(|e| e.0 == s.label) {
+                v.push((s.label.clone(), s.color_index));
+            }
+        }
+        v
+    }
+}
+
+impl Figure for LayoutFigure {
+    fn size(&self) -> (u32, u32) {
+        let cols = self.panels.len().clamp(1, 2) as u32;
+        let rows = self.panels.len().max(1).div_ceil(2) as u32;
+        let legend = (self.legend().len() + 1).div_ceil(LEGEND_COLS) as u32 * LEGEND_ROW as u32 + 16;
+        (cols * 640, rows * 460 + legend + 40)
+    }
+
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+        let root = root.titled(&self.caption, ("sans-serif", 22)).map_err(err)?;
+        let (w, h) = root.dim_in_pixel();
+        let entries = self.legend();
+        let legend_h = (entries.len() + 1).div_ceil(LEGEND_COLS) as i32 * LEGEND_ROW + 16;
+        let (top, bottom) = root.split_vertically((h as i32 - legend_h).max(h as i32 / 2));
+        let cols = self.panels.len().clamp(1, 2);
+        let rows = self.panels.len().max(1).div_ceil(2);
+        let areas = top.split_evenly((rows, cols));
+        for (panel, area) in self.panels.iter().zip(areas.iter()) {
+            draw_panel(area, panel)?;
+        }
+        // Legend: families, then the front.
+        let col_w = (w as i32 - 40) / LEGEND_COLS as i32;
+        let mut all: Vec<(String, Option<usize>)> = entries.into_iter().map(|(l, c)| (l, Some(c))).collect();
+        all.push(("Pareto front (ringed; fewer bytes and lower cost)".into(), None));
+        for (i, (label, c)) in all.iter().enumerate() {
+            let x = 40 + (i % LEGEND_COLS) as i32 * col_w;
+            let y = 6 + (i / LEGEND_COLS) as i32 * LEGEND_ROW;
+            let col = c.map(color).unwrap_or(BLACK);
+            bottom
+                .draw(&PathElement::new(vec![(x, y + 6), (x + 24, y + 6)], col.stroke_width(2)))
+                .map_err(err)?;
+            if let Some(ci) = c {
+                draw_marker(&bottom, (x + 12, y + 6), *ci, col)?;
+            } else {
+                bottom.draw(&Circle::new((x + 12, y + 6), 6, BLACK.stroke_width(1))).map_err(err)?;
+            }
+            bottom
+                .draw(&Text::new(label.clone(), (x + 30, y), ("sans-serif", 13).into_font()))
+                .map_err(err)?;
+        }
+        Ok(())
+    }
+}
+
+/// Marker shape by colour index (so families stay apart in black and white too).
+fn draw_marker<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    p: (i32, i32),
+    ci: usize,
+    col: RGBColor,
+) -> Result<(), String> {
+    match ci % 4 {
+        0 => area.draw(&Circle::new(p, 4, col.filled())),
+        1 => area.draw(&TriangleMarker::new(p, 5, col.filled())),
+        2 => area.draw(&Cross::new(p, 4, col.stroke_width(2))),
+        _ => area.draw(&Rectangle::new([(p.0 - 3, p.1 - 3), (p.0 + 3, p.1 + 3)], col.filled())),
+    }
+    .map_err(err)
+}
+
+fn range(vs: impl Iterator<Item = f64>, log_ratio: f64) -> Option<(f64, f64, bool)> {
+    let (lo, hi) = vs
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    if !lo.is_finite() {
+        return None;
+    }
+    if lo > 0.0 && hi / lo > log_ratio {
+        return Some((lo / 1.25, hi * 1.35, true));
+    }
+    let span = if hi > lo { hi - lo } else { hi.abs().max(1e-3) };
+    let lo2 = if lo >= 0.0 && lo - 0.1 * span < 0.0 { 0.0 } else { lo - 0.1 * span };
+    Some((lo2, hi + 0.15 * span, false))
+}
+
+fn draw_panel<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panel: &ScatterPanel) -> Result<(), String> {
+    let all = || panel.series.iter().flat_map(|s| s.points.iter());
+    let xr = range(all().map(|p| p.0), 8.0);
+    let yr = range(all().map(|p| p.1), 20.0);
+    let (Some(xr), Some(yr)) = (xr, yr) else {
+        area.draw(&Text::new(
+            format!("{}: no data", panel.title),
+            (20, 30),
+            ("sans-serif", 16).into_font(),
+        ))
+        .map_err(err)?;
+        return Ok(());
+    };
+    let xd = if xr.2 { format!("{} (log)", panel.x_desc) } else { panel.x_desc.clone() };
+    let yd = if yr.2 { format!("{} (log)", panel.y_desc) } else { panel.y_desc.clone() };
+    match (xr.2, yr.2) {
+        (false, false) => panel_with(area, panel, xr.0..xr.1, yr.0..yr.1, &xd, &yd),
+        (true, false) => panel_with(area, panel, (xr.0..xr.1).log_scale(), yr.0..yr.1, &xd, &yd),
+        (false, true) => panel_with(area, panel, xr.0..xr.1, (yr.0..yr.1).log_scale(), &xd, &yd),
+        (true, true) => panel_with(area, panel, (xr.0..xr.1).log_scale(), (yr.0..yr.1).log_scale(), &xd, &yd),
+    }
+}
+
+fn panel_with<DB, X, Y>(
+    area: &DrawingArea<DB, Shift>,
+    panel: &ScatterPanel,
+    xr: X,
+    yr: Y,
+    xdesc: &str,
+    ydesc: &str,
+) -> Result<(), String>
+where
+    DB: DrawingBackend,
+    X: AsRangedCoord<Value = f64>,
+    X::CoordDescType: ValueFormatter<f64>,
+    Y: AsRangedCoord<Value = f64>,
+    Y::CoordDescType: ValueFormatter<f64>,
+{
+    let mut chart = ChartBuilder::on(area)
+        .caption(&panel.title, ("sans-serif", 17))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(xr, yr)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc(xdesc)
+        .y_desc(ydesc)
+        .x_label_formatter(&|v| fmt_num(*v))
+        .y_label_formatter(&|v| fmt_num(*v))
+        .draw()
+        .map_err(err)?;
+    // Front over distinct finite points of every series.
+    let mut pts: Vec<(f64, f64, String)> = Vec::new();
+    for p in panel.series.iter().flat_map(|s| s.points.iter()) {
+        if p.0.is_finite() && p.1.is_finite() && !pts.iter().any(|q| q.0 == p.0 && q.1 == p.1 && q.2 == p.2) {
+            pts.push(p.clone());
+        }
+    }
+    let xy: Vec<(f64, f64)> = pts.iter().map(|p| (p.0, p.1)).collect();
+    let fr = pareto_front(&xy);
+    chart
+        .draw_series(LineSeries::new(fr.iter().map(|&i| xy[i]), BLACK.mix(0.6).stroke_width(1)))
+        .map_err(err)?;
+    for s in &panel.series {
+        let col = color(s.color_index);
+        let sp: Vec<(f64, f64)> = s
+            .points
+            .iter()
+            .filter(|p| p.0.is_finite() && p.1.is_finite())
+            .map(|p| (p.0, p.1))
+            .collect();
+        if sp.len() > 1 {
+            chart.draw_series(LineSeries::new(sp.clone(), col.stroke_width(2))).map_err(err)?;
+        }
+        let ci = s.color_index;
+        match ci % 4 {
+            0 => chart.draw_series(sp.iter().map(|&p| Circle::new(p, 4, col.filled()))).map(|_| ()),
+            1 => chart.draw_series(sp.iter().map(|&p| TriangleMarker::new(p, 5, col.filled()))).map(|_| ()),
+            2 => chart.draw_series(sp.iter().map(|&p| Cross::new(p, 4, col.stroke_width(2)))).map(|_| ()),
+            _ => chart
+                .draw_series(sp.iter().map(|&p| EmptyElement::at(p) + Rectangle::new([(-3, -3), (3, 3)], col.filled())))
+                .map(|_| ()),
+        }
+        .map_err(err)?;
+    }
+    for (k, &i) in fr.iter().enumerate() {
+        chart
+            .draw_series(std::iter::once(
+                EmptyElement::at(xy[i])
+                    + Circle::new((0, 0), 8, BLACK.stroke_width(1))
+                    + Text::new(pts[i].2.clone(), (9, -14 + 12 * (k as i32 % 2)), ("sans-serif", 11).into_font()),
+            ))
+            .map_err(err)?;
+    }
+    Ok(())
+}
+
+/// Figure of one case: bytes per triangle (topology, total) against `ys`.
+pub fn figure(case: &Case, caption: &str, ys: &[Metric]) -> LayoutFigure {
+    let fams = families(case);
+    let mut panels = Vec::new();
+    for &y in ys {
+        for x in [Metric::TopologyBytesPerTriangle, Metric::TotalBytesPerTriangle] {
+            let series = fams
+                .iter()
+                .enumerate()
+                .map(|(fi, f)| Series {
+                    label: f.label.clone(),
+                    color_index: fi,
+                    points: f
+                        .members
+                        .iter()
+                        .filter_map(|&i| {
+                            let p = &case.points[i];
+                            Some((x.of(p.row)?, y.of(p.row)?, p.label.clone()))
+                        })
+                        .collect(),
+                })
+                .collect();
+            panels.push(ScatterPanel {
+                title: format!("{} vs {}", y.desc(), x.desc()),
+                x_desc: x.desc().into(),
+                y_desc: y.desc().into(),
+                series,
+            });
+        }
+    }
+    LayoutFigure { caption: caption.to_string(), panels }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Findings
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    Agrees,
+    Differs,
+    /// Timings within TIE_PERCENT: neither.
+    Tie,
+}
+
+impl Verdict {
+    pub fn word(self) -> &'static str {
+        match self {
+            Verdict::Agrees => "agrees",
+            Verdict::Differs => "differs",
+            Verdict::Tie => "tie",
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct CaseVerdict {
+    pub case: String,
+    pub verdict: Verdict,
+    /// Our numbers behind the verdict.
+    pub numbers: String,
+}
+
+#[derive(Clone, Debug)]
+pub struct Finding {
+    pub id: &'static str,
+    pub claim: String,
+    /// What Kilian states (section), or the issue's target.
+    pub kilian: String,
+    pub cases: Vec<CaseVerdict>,
+}
+
+/// The time a layout's ray trace is compared by: the slowdown against bvh2 timed alternately in
+/// the same run when present (robust to machine load between stages), else the trace seconds.
+fn speed(r: &ResultRow) -> Option<f64> {
+    r.slowdown.or(r.trace_seconds).filter(|v| v.is_finite() && *v > 0.0)
+}
+
+fn speed_word(r: &ResultRow) -> &'static str {
+    if r.slowdown.is_some() {
+        "x bvh2"
+    } else {
+        "s"
+    }
+}
+
+/// `a` faster than `b` (a strictly below b beyond the tie band).
+fn faster(a: f64, b: f64) -> Verdict {
+    let d = (a - b) / b * 100.0;
+    if d.abs() <= TIE_PERCENT {
+        Verdict::Tie
+    } else if d < 0.0 {
+        Verdict::Agrees
+    } else {
+        Verdict::Differs
+    }
+}
+
+fn get(p: &Point, k: &str) -> Option<String> {
+    p.params.get(k).cloned()
+}
+
+fn chunk_of(p: &Point) -> f64 {
+    p.params.get("chunk_bytes").and_then(|v| v.parse().ok()).unwrap_or(f64::NAN)
+}
+
+/// Chunk-size groups of a layout: points equal except for chunk_bytes, two or more sizes.
+fn chunk_groups<'c, 'a>(case: &'c Case<'a>, layout: &str) -> Vec<Vec<&'c Point<'a>>> {
+    let mut groups: Vec<(BTreeMap<String, String>, Vec<&Point>)> = Vec::new();
+    for p in case.points.iter().filter(|p| p.layout == layout && chunk_of(p).is_finite()) {
+        let mut rest = p.params.clone();
+        rest.remove("chunk_bytes");
+        match groups.iter_mut().find(|g| g.0 == rest) {
+            Some(g) => g.1.push(p),
+            None => groups.push((rest, vec![p])),
+        }
+    }
+    groups
+        .into_iter()
+        .filter(|g| g.1.len() > 1)
+        .map(|(_, mut v)| {
+            v.sort_by(|a, b| chunk_of(a).total_cmp(&chunk_of(b)));
+            v
+        })
+        .collect()
+}
+
+/// Combines pair verdicts: any difference differs; else any agreement agrees; else tie.
+fn combine(vs: &[Verdict]) -> Verdict {
+    if vs.contains(&Verdict::Differs) {
+        Verdict::Differs
+    } else if vs.contains(&Verdict::Agrees) {
+        Verdict::Agrees
+    } else {
+        Verdict::Tie
+    }
+}
+
+fn smaller_chunks(cases: &[Case], layout: &'static str, what: &'static str) -> Finding {
+    let speed_claim = what == "faster";
+    let mut out = Vec::new();
+    for c in cases {
+        for g in chunk_groups(c, layout) {
+            let mut vs = Vec::new();
+            let mut nums = Vec::new();
+            for p in &g {
+                let v = if speed_claim { speed(p.row) } else { p.row.topology_bytes_per_triangle };
+                nums.push(format!(
+                    "{}B: {}",
+                    fmt_num(chunk_of(p)),
+                    v.map(|v| format!("{}{}", fmt_num(v), if speed_claim { speed_word(p.row) } else { " B/tri" }))
+                        .unwrap_or_else(|| "n/a".into())
+                ));
+            }
+            for w in g.windows(2) {
+                let (a, b) = if speed_claim {
+                    (speed(w[0].row), speed(w[1].row))
+                } else {
+                    (w[0].row.topology_bytes_per_triangle, w[1].row.topology_bytes_per_triangle)
+                };
+                if let (Some(a), Some(b)) = (a, b) {
+                    vs.push(if speed_claim {
+                        faster(a, b)
+                    } else if a < b {
+                        Verdict::Agrees
+                    } else if a == b {
+                        Verdict::Tie
+                    } else {
+                        Verdict::Differs
+                    });
+                }
+            }
+            if vs.is_empty() {
+                continue;
+            }
+            let fixed: Vec<String> = g[0]
+                .params
+                .iter()
+                .filter(|(k, _)| *k != "chunk_bytes" && g.len() > 1)
+                .filter(|(k, v)| c.points.iter().any(|q| q.layout == layout && q.params.get(*k) != Some(*v)))
+                .map(|(k, v)| short(k, v))
+                .collect();
+            let label = if fixed.is_empty() { c.label.clone() } else { format!("{} ({})", c.label, fixed.join(" ")) };
+            out.push(CaseVerdict { case: label, verdict: combine(&vs), numbers: nums.join(", ") });
+        }
+    }
+    let (kilian, claim) = if speed_claim {
+        (
+            if layout == "octree1" { "4.2.4, fig. 4.15: 16 B fastest" } else { "5.2.3, fig. 5.3: 64 B faster than 128 B" },
+            format!("{layout}: smaller chunks are faster (ties within {TIE_PERCENT}%)"),
+        )
+    } else {
+        (
+            if layout == "octree1" {
+                "4.2.4, fig. 4.15/4.16: topology smallest at 16 B"
+            } else {
+                "5.2.3, fig. 5.3/5.4: 64 B smaller than 128 B"
+            },
+            format!("{layout}: smaller chunks give a smaller topology"),
+        )
+    };
+    let id = match (layout, speed_claim) {
+        ("octree1", false) => "1a",
+        ("octree1", true) => "1b",
+        (_, false) => "1c",
+        (_, true) => "1d",
+    };
+    Finding { id, claim, kilian: kilian.into(), cases: out }
+}
+
+/// Pairs of qbvh points differing only in `frame` (chunk, parent).
+fn frame_pairs<'c, 'a>(c: &'c Case<'a>) -> Vec<(&'c Point<'a>, &'c Point<'a>)> {
+    let mut out = Vec::new();
+    for a in c.points.iter().filter(|p| p.layout == "qbvh" && get(p, "frame").as_deref() == Some("chunk")) {
+        let mut rest = a.params.clone();
+        rest.remove("frame");
+        for b in c.points.iter().filter(|p| p.layout == "qbvh" && get(p, "frame").as_deref() == Some("parent")) {
+            let mut rb = b.params.clone();
+            rb.remove("frame");
+            if rb == rest {
+                out.push((a, b));
+            }
+        }
+    }
+    out
+}
+
+fn pair_label(c: &Case, a: &Point) -> String {
+    let mut p = a.params.clone();
+    p.remove("frame");
+    let keys: Vec<String> = p.keys().cloned().collect();
+    format!("{} ({})", c.label, label_of("qbvh", &p, &keys).trim_start_matches("qbvh "))
+}
+
+fn frames(cases: &[Case]) -> (Finding, Finding) {
+    let (mut fast, mut tests) = (Vec::new(), Vec::new());
+    for c in cases {
+        for (a, b) in frame_pairs(c) {
+            if let (Some(sa), Some(sb)) = (speed(a.row), speed(b.row)) {
+                fast.push(CaseVerdict {
+                    case: pair_label(c, a),
+                    verdict: faster(sa, sb),
+                    numbers: format!(
+                        "chunk {}{}, parent {}{}",
+                        fmt_num(sa),
+                        speed_word(a.row),
+                        fmt_num(sb),
+                        speed_word(b.row)
+                    ),
+                });
+            }
+            let t = |r: &ResultRow| r.intersections_per_ray.or(r.extra_tests_per_ray).filter(|v| v.is_finite());
+            if let (Some(ta), Some(tb)) = (t(a.row), t(b.row)) {
+                let v = if tb < ta {
+                    Verdict::Agrees
+                } else if tb == ta {
+                    Verdict::Tie
+                } else {
+                    Verdict::Differs
+                };
+                tests.push(CaseVerdict {
+                    case: pair_label(c, a),
+                    verdict: v,
+                    numbers: format!("tests/ray: chunk {}, parent {}", fmt_num(ta), fmt_num(tb)),
+                });
+            }
+        }
+    }
+    (
+        Finding {
+            id: "2a",
+            claim: format!("qbvh: chunk-root frame faster than parent frame (ties within {TIE_PERCENT}%)"),
+            kilian: "5.2.3, fig. 5.5 left".into(),
+            cases: fast,
+        },
+        Finding {
+            id: "2b",
+            claim: "qbvh: parent frame needs fewer triangle tests per ray".into(),
+            kilian: "5.2.3, fig. 5.5 right".into(),
+            cases: tests,
+        },
+    )
+}
+
+fn find<'c, 'a>(c: &'c Case<'a>, layout: &str, want: &[(&str, &str)]) -> Option<&'c Point<'a>> {
+    c.points
+        .iter()
+        .find(|p| p.layout == layout && want.iter().all(|(k, v)| p.params.get(*k).is_none_or(|x| x == v)))
+}
+
+/// Kilian's chosen qbvh (5.2.3): 64-byte chunks, chunk-root frame, 8 bits.
+fn default_qbvh<'c, 'a>(c: &'c Case<'a>) -> Option<&'c Point<'a>> {
+    find(c, "qbvh", &[("chunk_bytes", "64"), ("frame", "chunk"), ("bits", "8")])
+}
+
+fn octree_pair(cases: &[Case]) -> Finding {
+    let mut out = Vec::new();
+    for c in cases {
+        let Some(o) = find(c, "octree", &[]) else { continue };
+        let Some(o1) = find(c, "octree1", &[("chunk_bytes", "16"), ("fill", "bfs")]) else { continue };
+        let (Some(so), Some(s1)) = (speed(o.row), speed(o1.row)) else { continue };
+        let ratio = s1 / so;
+        out.push(CaseVerdict {
+            case: c.label.clone(),
+            verdict: if ratio <= ALMOST_AS_FAST { Verdict::Agrees } else { Verdict::Differs },
+            numbers: format!(
+                "octree {}{}, octree1 16B {}{}: {}x",
+                fmt_num(so),
+                speed_word(o.row),
+                fmt_num(s1),
+                speed_word(o1.row),
+                fmt_num(ratio)
+            ),
+        });
+    }
+    Finding {
+        id: "3",
+        claim: format!("octree1 (16 B) almost as fast as octree: time ratio <= {ALMOST_AS_FAST}"),
+        kilian: "6.3, fig. 6.2: increase \"only very small\" (Hair: faster)".into(),
+        cases: out,
+    }
+}
+
+fn qbvh_speed(cases: &[Case]) -> (Finding, Finding) {
+    let (mut slower, mut target) = (Vec::new(), Vec::new());
+    for c in cases {
+        let qs: Vec<&Point> = c.points.iter().filter(|p| p.layout == "qbvh").collect();
+        if let Some(d) = default_qbvh(c).or(qs.first().copied()) {
+            if let Some(s) = d.row.slowdown.filter(|v| v.is_finite()) {
+                slower.push(CaseVerdict {
+                    case: format!("{} ({})", c.label, d.label),
+                    verdict: if s > 1.0 + TIE_PERCENT / 100.0 {
+                        Verdict::Agrees
+                    } else if s >= 1.0 - TIE_PERCENT / 100.0 {
+                        Verdict::Tie
+                    } else {
+                        Verdict::Differs
+                    },
+                    numbers: format!("slowdown {}", fmt_num(s)),
+                });
+            }
+        }
+        let best = qs
+            .iter()
+            .filter_map(|p| p.row.slowdown.filter(|v| v.is_finite()).map(|s| (s, *p)))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        if let Some((s, p)) = best {
+            let dflt = default_qbvh(c)
+                .and_then(|d| d.row.slowdown)
+                .map(|s| format!("; Kilian's 64B/chunk/8bit {}", fmt_num(s)))
+                .unwrap_or_default();
+            target.push(CaseVerdict {
+                case: c.label.clone(),
+                verdict: if s <= QBVH_TARGET_SLOWDOWN { Verdict::Agrees } else { Verdict::Differs },
+                numbers: format!("best {} {}x{dflt}", p.label, fmt_num(s)),
+            });
+        }
+    }
+    (
+        Finding {
+            id: "4a",
+            claim: "qbvh clearly slower than bvh2 (slowdown > 1)".into(),
+            kilian: "6.3, 6.5, fig. 6.7: \"clear increase\"".into(),
+            cases: slower,
+        },
+        Finding {
+            id: "4b",
+            claim: format!("target: best qbvh within {QBVH_TARGET_SLOWDOWN}x of bvh2"),
+            kilian: "issue 5 target (Kilian: \"can almost keep up\", 6.5)".into(),
+            cases: target,
+        },
+    )
+}
+
+fn qbvh_topology(cases: &[Case]) -> Finding {
+    let mut out = Vec::new();
+    for c in cases {
+        let Some(b) = find(c, "bvh2", &[]) else { continue };
+        let Some(bt) = b.row.topology_bytes.filter(|&t| t > 0) else { continue };
+        let ratios: Vec<(f64, &Point)> = c
+            .points
+            .iter()
+            .filter(|p| p.layout == "qbvh")
+            .filter_map(|p| p.row.topology_bytes.map(|t| (t as f64 / bt as f64, p)))
+            .collect();
+        let judged = default_qbvh(c)
+            .and_then(|d| ratios.iter().find(|(_, p)| std::ptr::eq(*p, d)).copied())
+            .or_else(|| ratios.iter().copied().min_by(|a, b| a.0.total_cmp(&b.0)));
+        let Some((r, p)) = judged else { continue };
+        let (lo, hi) = ratios.iter().fold((f64::INFINITY, 0.0f64), |(a, b), x| (a.min(x.0), b.max(x.0)));
+        out.push(CaseVerdict {
+            case: c.label.clone(),
+            verdict: if r <= QBVH_TOPOLOGY_RATIO { Verdict::Agrees } else { Verdict::Differs },
+            numbers: format!(
+                "{}: {}x bvh2 ({} of {} bits/node); all qbvh {}..{}x",
+                p.label,
+                fmt_num(r),
+                p.row.topology_bits_per_node.map(fmt_num).unwrap_or_else(|| "n/a".into()),
+                b.row.topology_bits_per_node.map(fmt_num).unwrap_or_else(|| "n/a".into()),
+                fmt_num(lo),
+                fmt_num(hi)
+            ),
+        });
+    }
+    Finding {
+        id: "5",
+        claim: format!("qbvh topology <= {QBVH_TOPOLOGY_RATIO}x bvh2 (Kilian's 64B/chunk/8bit, else the smallest)"),
+        kilian: "5.2.1: best case 58.67 / 57.45 bits per node (64 / 128 B) vs 256".into(),
+        cases: out,
+    }
+}
+
+fn octree1_bits(cases: &[Case]) -> Finding {
+    let mut out = Vec::new();
+    for c in cases {
+        for p in c.points.iter().filter(|p| p.layout == "octree1" && get(p, "chunk_bytes").as_deref() == Some("16")) {
+            let Some(b) = p.row.topology_bits_per_node.filter(|v| v.is_finite()) else { continue };
+            out.push(CaseVerdict {
+                case: format!("{} ({})", c.label, p.label),
+                verdict: if b <= OCTREE1_BITS_16 { Verdict::Agrees } else { Verdict::Differs },
+                numbers: format!(
+                    "{} bits/node, fill {}",
+                    fmt_num(b),
+                    p.row.chunk_fill.map(|f| format!("{:.1}%", f * 100.0)).unwrap_or_else(|| "n/a".into())
+                ),
+            });
+        }
+    }
+    Finding {
+        id: "6",
+        claim: format!("octree1 at 16 B: <= {OCTREE1_BITS_16} bits per node"),
+        kilian: "4.2.2: 2 bits/node best case (full chunks); 16 B worst case 16".into(),
+        cases: out,
+    }
+}
+
+fn fills(cases: &[Case]) -> Finding {
+    let mut out = Vec::new();
+    for c in cases {
+        let q = default_qbvh(c).or_else(|| find(c, "qbvh", &[("chunk_bytes", "64")]));
+        let o = find(c, "octree1", &[("chunk_bytes", "16"), ("fill", "bfs")]);
+        let (Some(q), Some(o)) = (q, o) else { continue };
+        let (Some(fq), Some(fo)) = (q.row.chunk_fill, o.row.chunk_fill) else { continue };
+        out.push(CaseVerdict {
+            case: c.label.clone(),
+            verdict: if fq < fo { Verdict::Agrees } else { Verdict::Differs },
+            numbers: format!("{} {:.1}%, {} {:.1}%", q.label, fq * 100.0, o.label, fo * 100.0),
+        });
+    }
+    Finding {
+        id: "7",
+        claim: "qbvh chunks are filled less than octree1 chunks".into(),
+        kilian: "6.3, fig. 6.3 (qbvh &lt; 10%, octree1 ~30%)".into(),
+        cases: out,
+    }
+}
+
+/// Kilian's qualitative claims, checked per case. Memory claims use one ray set only (they do not
+/// depend on rays).
+pub fn findings(rows: &[ResultRow]) -> Vec<Finding> {
+    let cs = cases(rows);
+    // Memory does not depend on the ray set: judge it on the first case per (scene, chain).
+    let mut mem_cases: Vec<Case> = Vec::new();
+    for c in &cs {
+        if !mem_cases.iter().any(|m| m.scene_name == c.scene_name && m.chain == c.chain) {
+            let mut m = c.clone();
+            if let Some(k) = &c.rays_kind {
+                m.label = m.label.trim_end_matches(&format!(" · {k}")).to_string();
+            }
+            mem_cases.push(m);
+        }
+    }
+    let (f2a, f2b) = frames(&cs);
+    let (f4a, f4b) = qbvh_speed(&cs);
+    vec![
+        smaller_chunks(&mem_cases, "octree1", "smaller"),
+        smaller_chunks(&cs, "octree1", "faster"),
+        smaller_chunks(&mem_cases, "qbvh", "smaller"),
+        smaller_chunks(&cs, "qbvh", "faster"),
+        f2a,
+        f2b,
+        octree_pair(&cs),
+        f4a,
+        f4b,
+        qbvh_topology(&mem_cases),
+        octree1_bits(&mem_cases),
+        fills(&mem_cases),
+    ]
+}
+
+// ---------------------------------------------------------------------------------------------
+// Tables and section
+
+fn num(v: Option<f64>) -> String {
+    v.filter(|x| x.is_finite()).map(fmt_num).unwrap_or_default()
+}
+
+fn pct(v: Option<f64>) -> String {
+    v.filter(|x| x.is_finite()).map(|f| format!("{:.1}%", f * 100.0)).unwrap_or_default()
+}
+
+fn findings_table(fs: &[Finding]) -> String {
+    let mut h = String::from(
+        "<h3>Findings: Kilian's claims on our data</h3>\n<p>Each claim checked per scene (and chain / ray set) from \
+         the rows of this experiment; times compare slowdowns against bvh2 timed alternately in the same run (else \
+         trace seconds). \"tie\": within the tie band. Kilian's numbers are only those he states in the text \
+         (section given); ours are beside them.</p>\n<table><tr><th>#</th><th>claim</th><th>Kilian (stated)</th>\
+         <th>agrees</th><th>differs</th><th>tie</th><th>differing cases (our numbers)</th></tr>\n",
+    );
+    for f in fs {
+        let n = |v: Verdict| f.cases.iter().filter(|c| c.verdict == v).count();
+        let diff: Vec<String> = f
+            .cases
+            .iter()
+            .filter(|c| c.verdict == Verdict::Differs)
+            .map(|c| format!("{}: {}", escape(&c.case), escape(&c.numbers)))
+            .collect();
+        let cls = if n(Verdict::Differs) > 0 { " class=\"warn\"" } else { "" };
+        let _ = writeln!(
+            h,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\"><span{cls}>{}</span></td>\
+             <td class=\"n\">{}</td><td>{}</td></tr>",
+            f.id,
+            escape(&f.claim),
+            f.kilian,
+            n(Verdict::Agrees),
+            n(Verdict::Differs),
+            n(Verdict::Tie),
+            if f.cases.is_empty() { "no data for this claim".to_string() } else { diff.join("<br>") }
+        );
+    }
+    h.push_str("</table>\n<h4>Per case</h4>\n<table><tr><th>#</th><th>case</th><th>verdict</th><th>our numbers</th></tr>\n");
+    for f in fs {
+        for c in &f.cases {
+            let cls = if c.verdict == Verdict::Differs { " class=\"warn\"" } else { "" };
+            let _ = writeln!(
+                h,
+                "<tr><td>{}</td><td>{}</td><td><span{cls}>{}</span></td><td>{}</td></tr>",
+                f.id,
+                escape(&c.case),
+                c.verdict.word(),
+                escape(&c.numbers)
+            );
+        }
+    }
+    h.push_str("</table>\n");
+    h
+}
+
+fn memory_table(cs: &[Case]) -> String {
+    let mut h = String::from(
+        "<h3>Memory and chunks (Kilian fig. 4.16, 5.4, 6.3, 6.5)</h3>\n<p>Topology = what traversal reads at every \
+         step (nodes; chunks + node info), total adds the leaf arrays (Kilian 6.2). Bits/node = topology bits / \
+         layout nodes; Kilian's values are his best cases (every chunk full). Chunk fill = mean used slots / slots. \
+         Prim mult. = primitive references / triangles (octrees repeat primitives, fig. 6.5). Peak build = heap growth \
+         while building the layout.</p>\n<table><tr><th>scene</th><th>layout</th><th>params</th><th>topology B/tri</th>\
+         <th>total B/tri</th><th>bits/node</th><th>Kilian (stated) bits/node</th><th>nodes</th><th>chunks</th>\
+         <th>chunk fill</th><th>Kilian (stated) fill</th><th>prim mult.</th><th>peak build MB</th><th>layout s</th></tr>\n",
+    );
+    let mut seen: Vec<(String, String, String, BTreeMap<String, String>)> = Vec::new();
+    for c in cs {
+        for p in &c.points {
+            let key = (c.scene_name.clone(), c.chain.clone(), p.layout.clone(), p.params.clone());
+            if seen.contains(&key) {
+                continue;
+            }
+            seen.push(key);
+            let r = p.row;
+            let k = kilian_bits_per_node(&p.layout, &p.params)
+                .map(|(v, s)| format!("{} ({s})", fmt_num(v)))
+                .unwrap_or_default();
+            let fill_k = if r.chunks.is_some_and(|n| n > 0) { kilian_fill(&p.layout).unwrap_or("") } else { "" };
+            let mult = r.prim_refs.filter(|_| r.triangles > 0).map(|n| n as f64 / r.triangles as f64);
+            let _ = writeln!(
+                h,
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>\
+                 <td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td>{}</td>\
+                 <td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td></tr>",
+                escape(&c.scene_name),
+                escape(&p.layout),
+                escape(r.layout_params.as_deref().unwrap_or("")),
+                num(r.topology_bytes_per_triangle),
+                num(r.total_bytes_per_triangle),
+                num(r.topology_bits_per_node),
+                k,
+                r.layout_nodes.map(|n| n.to_string()).unwrap_or_default(),
+                r.chunks.filter(|&n| n > 0).map(|n| n.to_string()).unwrap_or_default(),
+                if r.chunks.is_some_and(|n| n > 0) { pct(r.chunk_fill) } else { String::new() },
+                fill_k,
+                num(mult),
+                num(r.peak_build_bytes.map(|b| b as f64 / 1e6)),
+                num(r.layout_seconds)
+            );
+        }
+    }
+    h.push_str("</table>\n");
+    h
+}
+
+fn speed_table(cs: &[Case]) -> String {
+    let mut h = String::from(
+        "<h3>Speed and accuracy</h3>\n<p>Trace s = median seconds of the ray set with the layout's own traversal; \
+         bvh2 s = the same rays through bvh2 of the same BVH, timed alternately in the same run; slowdown = their \
+         ratio. Extra box hits / tests per ray: against the uncompressed structure of the same topology (qbvh vs \
+         bvh2, octree1 vs octree). Layout SAH = SAH cost with the boxes the traversal tests (quantized / implicit \
+         octant boxes); BVH SAH = the exact SAH cost of the chain's BVH.</p>\n<table><tr><th>case</th><th>layout</th>\
+         <th>trace s</th><th>bvh2 s</th><th>slowdown</th><th>steps/ray</th><th>tests/ray</th><th>extra box hits/ray</th>\
+         <th>extra tests/ray</th><th>layout SAH</th><th>BVH SAH</th><th>ratio</th></tr>\n",
+    );
+    for c in cs {
+        for p in &c.points {
+            let r = p.row;
+            let ratio = r.layout_sah_cost.filter(|_| r.sah_cost > 0.0).map(|l| l / r.sah_cost);
+            let _ = writeln!(
+                h,
+                "<tr><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>\
+                 <td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>\
+                 <td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td></tr>",
+                escape(&c.label),
+                escape(&p.label),
+                num(r.trace_seconds),
+                num(r.bvh2_trace_seconds),
+                num(r.slowdown),
+                num(r.traversal_steps_per_ray),
+                num(r.intersections_per_ray),
+                num(r.extra_box_hits_per_ray),
+                num(r.extra_tests_per_ray),
+                num(r.layout_sah_cost),
+                num(Some(r.sah_cost)),
+                num(ratio)
+            );
+        }
+    }
+    h.push_str("</table>\n");
+    h
+}
+
+fn auto_table(cs: &[Case]) -> String {
+    let autos: Vec<(&Case, &ResultRow)> = cs.iter().flat_map(|c| c.auto.iter().map(move |r| (c, *r))).collect();
+    if autos.is_empty() {
+        return String::new();
+    }
+    let mut h = String::from(
+        "<h3>layout=auto: the choice per scene</h3>\n<p>The smallest layout within the slowdown limit, from a search \
+         measured on a sample of rays; the reason is the search's own account (layout_choice).</p>\n<table><tr>\
+         <th>case</th><th>chosen layout</th><th>params</th><th>topology B/tri</th><th>total B/tri</th><th>slowdown</th>\
+         <th>reason</th></tr>\n",
+    );
+    for (c, r) in autos {
+        let _ = writeln!(
+            h,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>\
+             <td>{}</td></tr>",
+            escape(&c.label),
+            escape(r.layout.as_deref().unwrap_or("")),
+            escape(r.layout_params.as_deref().unwrap_or("")),
+            num(r.topology_bytes_per_triangle),
+            num(r.total_bytes_per_triangle),
+            num(r.slowdown),
+            escape(r.layout_choice.as_deref().unwrap_or(""))
+        );
+    }
+    h.push_str("</table>\n");
+    h
+}
+
+/// `None` when no row has a layout.
+pub(crate) fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<String>) -> Option<Section> {
+    if !rows.iter().any(|r| r.layout.is_some()) {
+        return None;
+    }
+    let cs = cases(rows);
+    let mut plots = Vec::new();
+    for c in &cs {
+        if c.points.is_empty() {
+            continue;
+        }
+        let has = |m: Metric| c.points.iter().any(|p| m.of(p.row).is_some());
+        let stem = c.label.replace(" · ", "_");
+        let mut speed_ys = Vec::new();
+        if has(Metric::TraceSeconds) {
+            speed_ys.push(Metric::TraceSeconds);
+        }
+        if has(Metric::Slowdown) {
+            speed_ys.push(Metric::Slowdown);
+        }
+        if !speed_ys.is_empty() {
+            let fig = figure(c, &format!("{}: memory vs speed", c.label), &speed_ys);
+            plots.extend(plot(&fig, &format!("layouts_speed_{stem}"), &format!("{}: bytes vs trace time", c.label), problems));
+        }
+        let mut acc_ys = Vec::new();
+        if has(Metric::ExtraTestsPerRay) {
+            acc_ys.push(Metric::ExtraTestsPerRay);
+        }
+        if has(Metric::ExtraBoxHitsPerRay) {
+            acc_ys.push(Metric::ExtraBoxHitsPerRay);
+        }
+        if !acc_ys.is_empty() {
+            let fig = figure(c, &format!("{}: memory vs accuracy", c.label), &acc_ys);
+            plots.extend(plot(
+                &fig,
+                &format!("layouts_accuracy_{stem}"),
+                &format!("{}: bytes vs extra tests", c.label),
+                problems,
+            ));
+        }
+    }
+    let mut extra = findings_table(&findings(rows));
+    extra.push_str(&memory_table(&cs));
+    extra.push_str(&speed_table(&cs));
+    extra.push_str(&auto_table(&cs));
+    Some(Section {
+        id: "layouts",
+        title: "Compressed layouts (Kilian 2021)".into(),
+        intro: "Layout stage: bvh2 (flat 32-byte nodes), qbvh (quantized boxes, 1-bit topology in chunks; Kilian 5.2), \
+                octree (32-bit nodes; 4.1) and octree1 (1-bit octree in chunks; 4.2). Per scene (and chain and ray set): \
+                bytes per triangle (topology, total) against trace time and slowdown vs bvh2, and against the extra \
+                triangle tests and box hits quantization costs; one curve per layout family (a layout with every \
+                parameter fixed but one), ringed points on the Pareto front (no other layout is both smaller and \
+                cheaper). layout=auto rows are not plotted; they are in the last table."
+            .into(),
+        plots,
+        extra,
+    })
+}

@@ -1,0 +1,221 @@
+//! The "Compressed layouts (Kilian 2021)" section on synthetic rows: cases and labels, family
+//! curves, the Pareto front on a hand-made example, findings that agree and differ, and no panic on
+//! rows with missing layout fields or a single layout.
+use bvhlab_pipeline::ResultRow;
+use bvhlab_report::layouts::{self, Metric, Verdict};
+use bvhlab_report::write_report;
+
+struct L {
+    layout: &'static str,
+    params: &'static str,
+    topo: f64,
+    total: f64,
+    slowdown: f64,
+    extra_tests: f64,
+}
+
+fn row(scene: &str, l: &L) -> ResultRow {
+    let tris = 10_000u64;
+    ResultRow {
+        experiment: "t".into(),
+        scene: format!("gen:{scene}"),
+        scene_name: scene.into(),
+        triangles: tris,
+        builder: "binned-sah".into(),
+        build_params: "bins=16,leaf=2".into(),
+        compact: "none".into(),
+        method: format!("binned-sah bins=16 [{} {}]", l.layout, l.params),
+        c_t: 3.0,
+        c_i: 2.0,
+        sah_cost: 100.0,
+        valid: true,
+        rays_kind: Some("random:1000".into()),
+        rays: Some(1000),
+        trace_seconds: Some(0.1 * l.slowdown),
+        intersections_per_ray: Some(10.0 + l.extra_tests),
+        traversal_steps_per_ray: Some(30.0),
+        layout: Some(l.layout.into()),
+        layout_params: Some(l.params.into()),
+        topology_bytes: Some((l.topo * tris as f64) as u64),
+        total_bytes: Some((l.total * tris as f64) as u64),
+        topology_bytes_per_triangle: Some(l.topo),
+        total_bytes_per_triangle: Some(l.total),
+        topology_bits_per_node: Some(l.topo * 8.0 / 2.0),
+        layout_nodes: Some(2 * tris),
+        chunks: if l.params.contains("chunk_bytes") { Some(100) } else { Some(0) },
+        chunk_fill: if l.params.contains("chunk_bytes") { Some(0.2) } else { Some(0.0) },
+        prim_refs: Some(if l.layout.starts_with("octree") { 3 * tris } else { tris }),
+        layout_seconds: Some(0.01),
+        layout_sah_cost: Some(105.0),
+        extra_box_hits_per_ray: Some(l.extra_tests / 2.0),
+        extra_tests_per_ray: Some(l.extra_tests),
+        bvh2_trace_seconds: Some(0.1),
+        slowdown: Some(l.slowdown),
+        ..Default::default()
+    }
+}
+
+const fn l(layout: &'static str, params: &'static str, topo: f64, slowdown: f64, extra_tests: f64) -> L {
+    L { layout, params, topo, total: topo + 8.0, slowdown, extra_tests }
+}
+
+/// Kilian's picture: smaller chunks smaller and faster, chunk frame faster, parent frame fewer
+/// tests, octree1 close to octree, qbvh slower than bvh2 but within 1.5x.
+const AGREEING: &[L] = &[
+    l("bvh2", "", 64.0, 1.0, 0.0),
+    l("qbvh", "bits=8,chunk_bytes=64,frame=chunk", 20.0, 1.3, 0.5),
+    l("qbvh", "bits=8,chunk_bytes=128,frame=chunk", 30.0, 1.5, 0.5),
+    l("qbvh", "bits=8,chunk_bytes=64,frame=parent", 20.0, 1.4, 0.3),
+    l("qbvh", "bits=8,chunk_bytes=128,frame=parent", 30.0, 1.6, 0.3),
+    l("octree", "max_depth=24,mult_threshold=2.0,prim_threshold=20", 8.0, 2.0, 0.0),
+    l("octree1", "chunk_bytes=16,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.5, 2.1, 0.0),
+    l("octree1", "chunk_bytes=32,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.6, 2.2, 0.0),
+];
+
+/// Contradicts claims 1a/1b for octree1 (16 B bigger and slower than 32 B) and 2a (parent faster).
+const DIFFERING: &[L] = &[
+    l("bvh2", "", 64.0, 1.0, 0.0),
+    l("qbvh", "bits=8,chunk_bytes=64,frame=chunk", 20.0, 1.6, 0.5),
+    l("qbvh", "bits=8,chunk_bytes=64,frame=parent", 20.0, 1.2, 0.3),
+    l("octree", "max_depth=24,mult_threshold=2.0,prim_threshold=20", 8.0, 2.0, 0.0),
+    l("octree1", "chunk_bytes=16,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.9, 2.5, 0.0),
+    l("octree1", "chunk_bytes=32,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.6, 2.2, 0.0),
+];
+
+fn rows(scene: &str, ls: &[L]) -> Vec<ResultRow> {
+    ls.iter().map(|x| row(scene, x)).collect()
+}
+
+fn verdicts(rows: &[ResultRow], id: &str) -> Vec<(String, Verdict)> {
+    layouts::findings(rows)
+        .into_iter()
+        .filter(|f| f.id == id)
+        .flat_map(|f| f.cases.into_iter().map(|c| (c.case, c.verdict)))
+        .collect()
+}
+
+#[test]
+fn labels_and_families() {
+    let rs = rows("a", AGREEING);
+    let cs = layouts::cases(&rs);
+    assert_eq!(cs.len(), 1);
+    let labels: Vec<&str> = cs[0].points.iter().map(|p| p.label.as_str()).collect();
+    // Only the parameters that vary within a layout appear (bits=8 everywhere: not shown).
+    assert_eq!(
+        labels,
+        [
+            "bvh2",
+            "qbvh 64B frame=chunk",
+            "qbvh 128B frame=chunk",
+            "qbvh 64B frame=parent",
+            "qbvh 128B frame=parent",
+            "octree",
+            "octree1 16B",
+            "octree1 32B"
+        ]
+    );
+    let fams: Vec<(String, usize)> =
+        layouts::families(&cs[0]).into_iter().map(|f| (f.label, f.members.len())).collect();
+    assert!(fams.contains(&("bvh2".into(), 1)), "{fams:?}");
+    assert!(fams.contains(&("qbvh frame=chunk (by chunk size)".into(), 2)), "{fams:?}");
+    assert!(fams.contains(&("qbvh frame=parent (by chunk size)".into(), 2)), "{fams:?}");
+    assert!(fams.contains(&("qbvh 64B (by frame)".into(), 2)), "{fams:?}");
+    assert!(fams.contains(&("octree1 (by chunk size)".into(), 2)), "{fams:?}");
+    assert!(fams.contains(&("octree".into(), 1)), "{fams:?}");
+}
+
+#[test]
+fn pareto_front_hand_made() {
+    let rs = rows("a", AGREEING);
+    let cs = layouts::cases(&rs);
+    // Topology bytes vs slowdown: 128 B qbvh and parent frames are dominated by qbvh 64B chunk
+    // (same or fewer bytes, faster); octree1 32B by octree1 16B.
+    assert_eq!(
+        layouts::front(&cs[0], Metric::TopologyBytesPerTriangle, Metric::Slowdown),
+        ["octree1 16B", "octree", "qbvh 64B frame=chunk", "bvh2"]
+    );
+    // Against extra tests: bvh2/octree/octree1 have 0, so the smallest of them (octree1 16B)
+    // dominates everything else.
+    assert_eq!(layouts::front(&cs[0], Metric::TopologyBytesPerTriangle, Metric::ExtraTestsPerRay), ["octree1 16B"]);
+}
+
+#[test]
+fn findings_agree_and_differ() {
+    let mut rs = rows("good", AGREEING);
+    rs.extend(rows("bad", DIFFERING));
+    let v = |id| verdicts(&rs, id);
+    assert_eq!(v("1a"), [("good".to_string(), Verdict::Agrees), ("bad".to_string(), Verdict::Differs)]);
+    assert_eq!(v("1b"), [("good".to_string(), Verdict::Agrees), ("bad".to_string(), Verdict::Differs)]);
+    // qbvh chunk sizes: one case per frame on the agreeing scene, none on the other (one size).
+    assert_eq!(
+        v("1c"),
+        [("good (frame=chunk)".to_string(), Verdict::Agrees), ("good (frame=parent)".to_string(), Verdict::Agrees)]
+    );
+    assert_eq!(v("1d").len(), 2);
+    let frame_fast = v("2a");
+    assert_eq!(frame_fast.iter().filter(|c| c.1 == Verdict::Agrees).count(), 2, "{frame_fast:?}");
+    assert_eq!(frame_fast.iter().filter(|c| c.1 == Verdict::Differs).count(), 1, "{frame_fast:?}");
+    assert!(frame_fast.iter().any(|c| c.0.starts_with("bad") && c.1 == Verdict::Differs));
+    // Parent frame: fewer tests everywhere.
+    assert!(v("2b").iter().all(|c| c.1 == Verdict::Agrees));
+    // octree1 / octree: 2.1/2.0 = 1.05 agrees, 2.5/2.0 = 1.25 differs.
+    assert_eq!(v("3"), [("good".to_string(), Verdict::Agrees), ("bad".to_string(), Verdict::Differs)]);
+    // qbvh 64B/chunk/8bit slower than bvh2 in both; best within 1.5x in both (bad: parent 1.2).
+    assert!(v("4a").iter().all(|c| c.1 == Verdict::Agrees));
+    assert!(v("4b").iter().all(|c| c.1 == Verdict::Agrees));
+    // Topology 20/64 = 0.31 <= 0.5.
+    assert!(v("5").iter().all(|c| c.1 == Verdict::Agrees));
+    // octree1 16B bits/node = topo * 4: 2.0 (agrees) and 3.6 (differs).
+    assert_eq!(
+        v("6"),
+        [("good (octree1 16B)".to_string(), Verdict::Agrees), ("bad (octree1 16B)".to_string(), Verdict::Differs)]
+    );
+
+    // The page says so.
+    let dir = tempfile::tempdir().unwrap();
+    let index = write_report(dir.path(), "layouts", &rs, None).unwrap();
+    let html = std::fs::read_to_string(index).unwrap();
+    assert!(html.contains("Compressed layouts (Kilian 2021)"));
+    assert!(html.contains("<td>1a</td><td>bad</td><td><span class=\"warn\">differs</span></td>"), "{html}");
+    assert!(html.contains("<td>1a</td><td>good</td><td><span>agrees</span></td>"));
+    assert!(html.contains("Kilian (stated)"));
+    assert!(html.contains("58.67 (5.2.1, best case)"), "qbvh 64 B stated bits per node");
+    assert!(html.contains("2 (4.2.2, best case)"), "octree1 16 B stated bits per node");
+}
+
+#[test]
+fn missing_fields_single_layout_and_auto() {
+    // Only a layout name: every number missing.
+    let bare = ResultRow {
+        experiment: "t".into(),
+        scene: "gen:x".into(),
+        scene_name: "x".into(),
+        method: "m".into(),
+        layout: Some("qbvh".into()),
+        ..Default::default()
+    };
+    // A single layout with numbers.
+    let single = row("y", &AGREEING[0]);
+    // An auto row.
+    let mut auto = row("y", &AGREEING[1]);
+    auto.layout_choice = Some("qbvh 64B: smallest within max_slowdown 1.5 (1.3x)".into());
+    let rs = vec![bare, single, auto];
+    assert!(layouts::findings(&rs).iter().all(|f| f.cases.is_empty()));
+    let cs = layouts::cases(&rs);
+    assert_eq!(cs.len(), 2);
+    assert_eq!(cs[1].points.len(), 1);
+    assert_eq!(cs[1].auto.len(), 1);
+    assert!(layouts::front(&cs[0], Metric::TotalBytesPerTriangle, Metric::TraceSeconds).is_empty());
+    let dir = tempfile::tempdir().unwrap();
+    let html = std::fs::read_to_string(write_report(dir.path(), "layouts", &rs, None).unwrap()).unwrap();
+    assert!(html.contains("Compressed layouts (Kilian 2021)"));
+    assert!(html.contains("smallest within max_slowdown 1.5"));
+    assert!(html.contains("no data for this claim"));
+
+    // Without layout rows there is no section.
+    let mut plain = row("z", &AGREEING[0]);
+    plain.layout = None;
+    let dir = tempfile::tempdir().unwrap();
+    let html = std::fs::read_to_string(write_report(dir.path(), "plain", &[plain], None).unwrap()).unwrap();
+    assert!(!html.contains("Compressed layouts"));
+}
