@@ -1,7 +1,7 @@
 //! `bvhlab`: sweep experiments, evaluate one chain, inspect the cache, list scene generators and
 //! methods (builders, encoders, optimizers, layouts).
 use bvhlab_pipeline::{
-    run::Runner, store, sweep::sweep, ChainSpec, Error, Experiment, RaySpec, Registry, Result, Store,
+    estimate, run::Runner, store, sweep::sweep, ChainSpec, Error, Experiment, RaySpec, Registry, Result, Store,
 };
 use clap::{Parser, Subcommand};
 use std::collections::BTreeMap;
@@ -29,6 +29,10 @@ enum Cmd {
         /// Report directory (default: reports/<experiment name>).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Memory the largest chain may use (e.g. 4G; default: $BVHLAB_MAX_MEMORY, else
+        /// MemAvailable). A sweep whose estimate exceeds it fails before loading anything (exit 2).
+        #[arg(long, value_name = "BYTES")]
+        max_memory: Option<String>,
     },
     /// Run one chain and print its result.
     Eval {
@@ -75,6 +79,10 @@ enum Cmd {
         /// Print one JSON object (otherwise `key: value` lines).
         #[arg(long)]
         json: bool,
+        /// Memory the chain may use (e.g. 4G; default: $BVHLAB_MAX_MEMORY, else MemAvailable). A
+        /// chain whose estimate exceeds it fails before loading the scene (exit 2).
+        #[arg(long, value_name = "BYTES")]
+        max_memory: Option<String>,
     },
     /// Inspect or clean the artifact cache.
     Cache {
@@ -93,8 +101,16 @@ enum Cmd {
 enum CacheOp {
     /// List complete entries.
     Ls,
-    /// Check every file against its checksum; bad files are quarantined (recomputed next run).
-    Verify,
+    /// Check every manifest and every file it lists (blake3, artifact header). Reports only; exit 0
+    /// iff the cache is clean (no bad manifest or file). Temporary files of killed runs and
+    /// unfinished entries are listed but harmless (never read; `--repair` / `gc` remove them).
+    Verify {
+        /// Quarantine bad files, drop them from their manifests (removing manifests left empty or
+        /// bad) so the next run recomputes exactly them, and remove stale temporary files. The exit
+        /// code still says whether the cache was clean before the repair.
+        #[arg(long)]
+        repair: bool,
+    },
     /// Remove temporary, quarantined and incomplete files.
     Gc,
 }
@@ -119,10 +135,34 @@ fn parse_sets(set: &[String]) -> Result<BTreeMap<String, String>> {
     Ok(out)
 }
 
+/// Estimates the memory of every chain before anything is loaded and fails (exit 2) if the largest
+/// exceeds the limit (`--max-memory` > `BVHLAB_MAX_MEMORY` > MemAvailable). Returns the largest
+/// estimate (None if no scene's size is known without loading it).
+fn check_memory(chains: &[ChainSpec], max_memory: Option<&str>) -> Result<Option<estimate::MemoryEstimate>> {
+    let limit = estimate::memory_limit(max_memory)?;
+    let registry = Registry::standard();
+    let mut worst: Option<estimate::MemoryEstimate> = None;
+    let mut counts: BTreeMap<String, Option<(u64, bool)>> = BTreeMap::new();
+    for c in chains {
+        // Count each scene's triangles once (files are streamed).
+        if !counts.contains_key(&c.scene) {
+            counts.insert(c.scene.clone(), estimate::triangle_count(&c.source)?);
+        }
+        let Some(count) = counts[&c.scene] else { continue };
+        let est = estimate::estimate(c, &estimate::chain_stages(c, &registry), count);
+        estimate::check(&c.scene, &est, limit.as_ref())?;
+        if worst.as_ref().is_none_or(|w| est.peak_bytes > w.peak_bytes) {
+            worst = Some(est);
+        }
+    }
+    Ok(worst)
+}
+
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
-        Cmd::Sweep { experiment, cache, threads, out } => {
+        Cmd::Sweep { experiment, cache, threads, out, max_memory } => {
             let exp = Experiment::load(&experiment, &Registry::standard())?;
+            check_memory(&exp.chains(), max_memory.as_deref())?;
             let store = Store::open(store::resolve_root(cache.as_deref()))?;
             let mut runner = Runner::new(store);
             let progress = std::io::stderr().is_terminal();
@@ -143,7 +183,7 @@ fn run(cli: Cli) -> Result<()> {
             println!("{summary}");
             Ok(())
         }
-        Cmd::Eval { scene, build, encode, optimize, compact, set, rays, layout, focus, threads, repeat, cache, no_cache, json } => {
+        Cmd::Eval { scene, build, encode, optimize, compact, set, rays, layout, focus, threads, repeat, cache, no_cache, json, max_memory } => {
             let mut spec = ChainSpec::new(&scene, &build);
             spec.encode = encode;
             spec.optimize = optimize.filter(|o| o != "none");
@@ -153,6 +193,7 @@ fn run(cli: Cli) -> Result<()> {
             spec.repeat = repeat;
             spec.rays = rays.as_deref().map(RaySpec::parse).transpose()?;
             spec.layout = layout.filter(|l| l != "none");
+            let estimate = check_memory(std::slice::from_ref(&spec), max_memory.as_deref())?;
             let store = if no_cache { Store::temporary()? } else { Store::open(store::resolve_root(cache.as_deref()))? };
             let mut runner = Runner::new(store);
             let row = bvhlab_pipeline::with_threads(threads, || runner.run_chain(&spec, "eval"))??;
@@ -161,6 +202,10 @@ fn run(cli: Cli) -> Result<()> {
                 o.insert("computed".into(), runner.counts.computed.into());
                 o.insert("cached".into(), runner.counts.cached.into());
                 o.insert("threads".into(), threads.unwrap_or_else(rayon::current_num_threads).into());
+                o.insert(
+                    "memory_estimate".into(),
+                    serde_json::to_value(&estimate).map_err(|e| Error::internal(e.to_string()))?,
+                );
                 if no_cache {
                     // The throw-away cache (and the heat map in it) is deleted on exit.
                     o.insert("heatmap".into(), serde_json::Value::Null);
@@ -208,16 +253,32 @@ fn run(cli: Cli) -> Result<()> {
                     println!("# cache: {}", store.root().display());
                     Ok(())
                 }
-                CacheOp::Verify => {
-                    let r = store.verify();
+                CacheOp::Verify { repair } => {
+                    let r = store.check(repair);
                     for b in &r.bad {
                         println!("bad: {b}");
                     }
-                    println!("{}", serde_json::json!({"entries": r.entries, "files_ok": r.files_ok, "bad": r.bad.len()}));
-                    if r.bad.is_empty() {
+                    println!(
+                        "{}",
+                        serde_json::json!({
+                            "entries": r.entries, "files_ok": r.files_ok, "bad": r.bad.len(),
+                            "stale_temp": r.stale_temp, "incomplete": r.incomplete,
+                            "manifests_fixed": r.manifests_fixed, "busy": r.busy, "repaired": repair,
+                        })
+                    );
+                    if r.clean() {
                         Ok(())
+                    } else if repair {
+                        Err(Error::internal(format!(
+                            "{} bad cache file(s) quarantined and dropped from their manifests; the next run recomputes them",
+                            r.bad.len()
+                        )))
                     } else {
-                        Err(Error::internal(format!("{} corrupt file(s) quarantined; they will be recomputed", r.bad.len())))
+                        Err(Error::internal(format!(
+                            "{} bad cache file(s); `bvhlab cache verify --repair` quarantines them so the next run recomputes them \
+                             (runs also detect and recompute them on their own)",
+                            r.bad.len()
+                        )))
                     }
                 }
                 CacheOp::Gc => {

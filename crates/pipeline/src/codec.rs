@@ -15,16 +15,28 @@ fn config() -> bincode::config::Configuration {
 }
 
 pub fn encode<T: Serialize>(value: &T) -> Result<Vec<u8>, String> {
-    let payload =
-        bincode::serde::encode_to_vec(value, config()).map_err(|e| format!("encode: {e}"))?;
+    let (header, payload) = encode_parts(value)?;
     let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
-    out.extend_from_slice(&MAGIC);
-    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-    out.extend_from_slice(&0u32.to_le_bytes());
-    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-    out.extend_from_slice(blake3::hash(&payload).as_bytes());
+    out.extend_from_slice(&header);
     out.extend_from_slice(&payload);
     Ok(out)
+}
+
+/// Header and payload separately (the store writes them one after the other, so a large artifact
+/// is not copied a second time in memory). `header ++ payload == encode(value)`.
+///
+/// The header does not name the artifact's stage or key: that binding is the manifest's job (it
+/// records the blake3 of the whole file and is itself checked against its stage and key, see
+/// `Store::get_entry`), so the format, and every existing cache, stays as it is.
+pub fn encode_parts<T: Serialize>(value: &T) -> Result<([u8; HEADER_LEN], Vec<u8>), String> {
+    let payload =
+        bincode::serde::encode_to_vec(value, config()).map_err(|e| format!("encode: {e}"))?;
+    let mut header = [0u8; HEADER_LEN];
+    header[0..8].copy_from_slice(&MAGIC);
+    header[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
+    header[16..24].copy_from_slice(&(payload.len() as u64).to_le_bytes());
+    header[24..56].copy_from_slice(blake3::hash(&payload).as_bytes());
+    Ok((header, payload))
 }
 
 /// Checks header, length and checksum; returns the payload slice.

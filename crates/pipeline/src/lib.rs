@@ -5,6 +5,7 @@
 
 pub mod codec;
 pub mod error;
+pub mod estimate;
 pub mod experiment;
 pub mod key;
 pub mod memtrack;

@@ -379,14 +379,45 @@ impl Runner {
             machine: Machine::current(),
             time_unix: now_unix(),
             compute_seconds: seconds,
-        })
+        })?;
+        // Complete: other processes waiting on this node now read it as a hit.
+        self.store.unlock(node.stage, &node.key);
+        Ok(())
     }
 
+    /// Data file `ext` of `node` if its entry is complete and intact (`Store::get_entry`: manifest
+    /// of this stage and key, file blake3 as listed, codec checksum), else None: the caller computes
+    /// the node and `commit`s it.
+    ///
+    /// Two processes on one cache compute each node once: on a miss this takes the node's compute
+    /// lock (`cache/locks/<stage>/<key>.lock`, blocking while another process holds it) and checks
+    /// again under the lock; if the other process committed meanwhile, that is a hit. Otherwise the
+    /// lock is held until `commit` (or the end of the chain, `run_chain`'s `release_on_drop`, also on
+    /// error), so nobody else computes the node meanwhile. A hit releases the node's lock if held
+    /// (e.g. summary missing, full artifact intact). Only the locked re-check reports and
+    /// quarantines bad files: the unlocked first look might see another process's half-replaced
+    /// entry (new file, old manifest) and must not touch it.
+    ///
+    /// No deadlock: a process holds locks only of nodes it is computing. Computing node N needs
+    /// only N's inputs, which are strictly upstream of N (a key hashes its input keys, so the node
+    /// graph is acyclic), and inputs are resolved inside N's computation, so the held locks form a
+    /// path N1 <- N2 <- ... <- Nk and the next lock waited for is an input of Nk: strictly upstream
+    /// of every lock held. Fix any topological order of the node graph: every process acquires
+    /// locks in strictly decreasing order (downstream to upstream). In a wait cycle P1 -> P2 ->
+    /// ... -> P1, each lock waited for would be strictly upstream of the previous one, so the first
+    /// would be upstream of itself: impossible. A hit never keeps a lock, and a failed chain drops
+    /// all of its locks, so a lock is never held while waiting for something downstream.
     fn cached<T: serde::de::DeserializeOwned>(&self, node: &NodeDef, ext: &str) -> Option<T> {
-        if !self.store.has_manifest(node.stage, &node.key) {
-            return None;
+        if let Some(v) = self.store.get_entry(node.stage, &node.key, ext, false) {
+            self.store.unlock(node.stage, &node.key);
+            return Some(v);
         }
-        self.store.get(node.stage, &node.key, ext)
+        self.store.lock(node.stage, &node.key);
+        let v = self.store.get_entry(node.stage, &node.key, ext, true);
+        if v.is_some() {
+            self.store.unlock(node.stage, &node.key);
+        }
+        v
     }
 
     // ---- load -------------------------------------------------------------------------------
@@ -1180,6 +1211,7 @@ impl Runner {
 
     /// Runs (or reads from the cache) every stage of `spec` and returns its result row.
     pub fn run_chain(&mut self, spec: &ChainSpec, experiment: &str) -> Result<ResultRow> {
+        let _locks = self.store.release_on_drop(); // compute locks end with the chain (cached)
         let plan = self.plan(spec)?;
         let scene = self.scene_summary(&plan)?;
         let encode = self.encode_summary(&plan)?;

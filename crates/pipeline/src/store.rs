@@ -4,16 +4,28 @@
 //! `png` heat map, ...) plus `ROOT/<stage>/<hex key>.json`, the manifest, written last: an entry
 //! without a manifest is incomplete and ignored by `ls` and removed by `gc`. Every write goes to a
 //! temporary file in the same directory, is fsynced and then renamed, so a crash or a concurrent
-//! run never leaves a half-written artifact under a real name. A file that fails its checksum is
-//! moved to `ROOT/quarantine/` and treated as missing (it will be recomputed, never used).
+//! run never leaves a half-written artifact under a real name (temporary files are named
+//! `.tmp-<pid>-<n>-<name>`: readers never open them, `verify --repair` and `gc` remove those whose
+//! writer process is gone). A data file is used only if its blake3 equals the one its manifest
+//! records and the manifest names this stage and key (so a truncated, bit-flipped or foreign file,
+//! e.g. a valid artifact of another key copied over this one, is rejected); the codec then checks
+//! its own header checksum. A rejected file is moved to `ROOT/quarantine/` and recomputed.
+//!
+//! Concurrency: `ROOT/locks/<stage>/<key>.lock` are per-entry compute locks (`File::lock`, an
+//! advisory `flock`, released by the kernel when the process dies). A process computes an entry only
+//! while holding its lock and after re-checking, under the lock, that no other process completed
+//! it meanwhile; see `run.rs` (`cached`, `commit`) for the protocol and why it cannot deadlock.
 use crate::codec;
 use crate::error::{Error, Result};
 use crate::key::Key;
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use std::collections::BTreeMap;
+use std::collections::HashMap;
 use std::fs;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 
 /// What produced an artifact, stored beside it as JSON.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -87,6 +99,45 @@ pub struct Store {
     root: PathBuf,
     /// Removed on drop (`--no-cache`).
     temporary: bool,
+    /// Compute locks this process holds, (stage, key) -> the locked file. Shared with
+    /// `LockRelease` guards; dropping a `File` releases its lock.
+    locks: HeldLocks,
+}
+
+type HeldLocks = Arc<Mutex<HashMap<(String, Key), fs::File>>>;
+
+/// Releases every compute lock of its store when dropped (end of a chain, also on error).
+pub struct LockRelease(HeldLocks);
+
+impl Drop for LockRelease {
+    fn drop(&mut self) {
+        if let Ok(mut m) = self.0.lock() {
+            for (_, f) in m.drain() {
+                let _ = f.unlock();
+            }
+        }
+    }
+}
+
+/// Whether the process that wrote a temporary file `.tmp-<pid>-...` may still be writing it.
+/// Linux: `/proc/<pid>` exists. Elsewhere (no /proc): assume alive unless the file is a day old.
+fn writer_alive(name: &str, path: &Path) -> bool {
+    let pid = name
+        .strip_prefix(".tmp-")
+        .and_then(|r| r.split('-').next())
+        .and_then(|p| p.parse::<u32>().ok());
+    let Some(pid) = pid else { return false };
+    if pid == std::process::id() {
+        return true;
+    }
+    if Path::new("/proc/self").exists() {
+        return Path::new("/proc").join(pid.to_string()).exists();
+    }
+    fs::metadata(path)
+        .and_then(|m| m.modified())
+        .ok()
+        .and_then(|t| t.elapsed().ok())
+        .is_none_or(|age| age.as_secs() < 86_400)
 }
 
 impl Drop for Store {
@@ -107,8 +158,24 @@ fn io_err(what: &str, path: &Path, e: std::io::Error) -> Error {
 pub struct VerifyReport {
     pub entries: u64,
     pub files_ok: u64,
-    /// `path: reason` of every bad file (moved to quarantine).
+    /// `path: reason` of every bad manifest or data file (quarantined when repairing).
     pub bad: Vec<String>,
+    /// Temporary files of dead writers (a killed run): harmless, never read; removed when repairing.
+    pub stale_temp: u64,
+    /// Data files without a manifest (an entry a killed run did not finish): never read, removed by
+    /// `gc`. Not an error either.
+    pub incomplete: u64,
+    /// Manifests rewritten without their bad files, or removed when no file was left (repair).
+    pub manifests_fixed: u64,
+    /// Entries skipped because another process holds their compute lock (repair only).
+    pub busy: u64,
+}
+
+impl VerifyReport {
+    /// No bad manifest or data file (stale temporaries and incomplete entries do not count).
+    pub fn clean(&self) -> bool {
+        self.bad.is_empty()
+    }
 }
 
 #[derive(Debug, Default, Clone, Serialize)]
@@ -124,6 +191,7 @@ impl Store {
         Ok(Store {
             root,
             temporary: false,
+            locks: Arc::default(),
         })
     }
 
@@ -148,7 +216,9 @@ impl Store {
         self.root.join(stage).join(format!("{}.{ext}", key.hex()))
     }
 
-    /// Reads and verifies an artifact. Missing => None; corrupt => quarantined and None.
+    /// Reads and verifies an artifact file on its own (codec header and checksum only). Missing =>
+    /// None; corrupt => quarantined and None. The runner uses `get_entry`, which also checks the
+    /// file against its manifest.
     pub fn get<T: DeserializeOwned>(&self, stage: &str, key: &Key, ext: &str) -> Option<T> {
         let path = self.path(stage, key, ext);
         let bytes = fs::read(&path).ok()?;
@@ -162,6 +232,168 @@ impl Store {
                 self.quarantine(&path);
                 None
             }
+        }
+    }
+
+    /// Reads data file `ext` of a complete entry, checked end to end: the manifest exists, parses and
+    /// names this stage and key; it lists `ext`; the file's blake3 equals the listed one (which
+    /// rejects truncated, bit-flipped and foreign files, e.g. another key's valid artifact copied
+    /// here); the codec header checks out and the payload decodes. Anything else is a miss.
+    /// With `repair`, a problem is reported on stderr and the offending file quarantined; without
+    /// it the miss is silent and nothing is touched (the caller re-checks under the entry's lock
+    /// before acting, so it never quarantines a file another process is just replacing).
+    pub fn get_entry<T: DeserializeOwned>(
+        &self,
+        stage: &str,
+        key: &Key,
+        ext: &str,
+        repair: bool,
+    ) -> Option<T> {
+        let bad = |path: &Path, reason: &str| {
+            if repair {
+                eprintln!(
+                    "warning: bad cache file {}: {reason}; recomputing",
+                    path.display()
+                );
+                if path.exists() {
+                    self.quarantine(path);
+                }
+            }
+        };
+        let mpath = self.path(stage, key, "json");
+        let mbytes = match fs::read(&mpath) {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return None,
+            Err(e) => {
+                bad(&mpath, &format!("unreadable manifest: {e}"));
+                return None;
+            }
+        };
+        let m: Manifest = match serde_json::from_slice(&mbytes) {
+            Ok(m) => m,
+            Err(e) => {
+                bad(&mpath, &format!("unparseable manifest: {e}"));
+                return None;
+            }
+        };
+        if m.key != key.hex() || m.stage != stage {
+            bad(
+                &mpath,
+                &format!("manifest of {}/{} (foreign)", m.stage, m.key),
+            );
+            return None;
+        }
+        // Not listed: the entry lost this file to a repair; recompute the entry.
+        let want = m.files.get(ext)?;
+        let path = self.path(stage, key, ext);
+        let bytes = match fs::read(&path) {
+            Ok(b) => b,
+            Err(e) => {
+                if repair {
+                    eprintln!(
+                        "warning: cache file {} listed by its manifest is unreadable ({e}); recomputing",
+                        path.display()
+                    );
+                }
+                return None;
+            }
+        };
+        if blake3::hash(&bytes).to_hex().as_str() != want {
+            bad(
+                &path,
+                "blake3 differs from its manifest (truncated, corrupt or foreign)",
+            );
+            return None;
+        }
+        match codec::decode(&bytes) {
+            Ok(v) => Some(v),
+            Err(reason) => {
+                bad(&path, &reason);
+                None
+            }
+        }
+    }
+
+    // ---- compute locks ------------------------------------------------------------------------
+
+    fn lock_path(&self, stage: &str, key: &Key) -> PathBuf {
+        self.root
+            .join("locks")
+            .join(stage)
+            .join(format!("{}.lock", key.hex()))
+    }
+
+    fn open_lock(&self, stage: &str, key: &Key) -> std::io::Result<fs::File> {
+        let p = self.lock_path(stage, key);
+        if let Some(d) = p.parent() {
+            fs::create_dir_all(d)?;
+        }
+        fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&p)
+    }
+
+    /// Takes the exclusive compute lock of an entry, blocking while another process holds it.
+    /// Re-entrant within this process (a held lock is kept). On an I/O error it warns and goes on
+    /// unlocked: atomic writes keep the cache correct, only the once-per-entry guarantee is lost.
+    pub fn lock(&self, stage: &str, key: &Key) {
+        if self.holds_lock(stage, key) {
+            return;
+        }
+        // Block without holding the table's mutex.
+        match self
+            .open_lock(stage, key)
+            .and_then(|f| f.lock().map(|()| f))
+        {
+            Ok(f) => {
+                let mut held = self.locks.lock().unwrap_or_else(|e| e.into_inner());
+                held.insert((stage.to_string(), *key), f);
+            }
+            Err(e) => eprintln!(
+                "warning: cannot lock {}: {e}; computing without a lock",
+                self.lock_path(stage, key).display()
+            ),
+        }
+    }
+
+    /// Releases the entry's compute lock if this process holds it.
+    pub fn unlock(&self, stage: &str, key: &Key) {
+        let mut held = self.locks.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(f) = held.remove(&(stage.to_string(), *key)) {
+            let _ = f.unlock();
+        }
+    }
+
+    pub fn holds_lock(&self, stage: &str, key: &Key) -> bool {
+        let held = self.locks.lock().unwrap_or_else(|e| e.into_inner());
+        held.contains_key(&(stage.to_string(), *key))
+    }
+
+    /// Number of compute locks this process holds.
+    pub fn held_locks(&self) -> usize {
+        self.locks.lock().map(|m| m.len()).unwrap_or(0)
+    }
+
+    /// A guard releasing every lock this store holds when dropped.
+    pub fn release_on_drop(&self) -> LockRelease {
+        LockRelease(self.locks.clone())
+    }
+
+    /// The entry's lock if no process holds it (repair and gc skip entries being computed).
+    fn try_lock_entry(&self, stage: &str, key: &Key) -> Option<Option<fs::File>> {
+        if self.holds_lock(stage, key) {
+            return None;
+        }
+        match self.open_lock(stage, key) {
+            Ok(f) => match f.try_lock() {
+                Ok(()) => Some(Some(f)),
+                Err(fs::TryLockError::WouldBlock) => None,
+                Err(fs::TryLockError::Error(_)) => Some(None),
+            },
+            // No lock directory (read-only cache...): nothing can be computing through it.
+            Err(_) => Some(None),
         }
     }
 
@@ -231,7 +463,10 @@ impl Store {
         result
     }
 
-    /// Encodes and writes one data file; returns the blake3 hex of the written bytes.
+    /// Encodes and writes one data file; returns the blake3 hex of the written bytes. Header and
+    /// payload are written separately (no second in-memory copy of a large artifact). If the entry
+    /// already has a manifest (a summary restored from its intact full artifact), the manifest is
+    /// amended to list the file, so later runs accept it again.
     pub fn put<T: Serialize>(
         &self,
         stage: &str,
@@ -239,9 +474,23 @@ impl Store {
         ext: &str,
         value: &T,
     ) -> Result<String> {
-        let bytes = codec::encode(value).map_err(Error::internal)?;
-        Self::write_atomic(&self.path(stage, key, ext), &bytes)?;
-        Ok(blake3::hash(&bytes).to_hex().to_string())
+        let (header, payload) = codec::encode_parts(value).map_err(Error::internal)?;
+        Self::write_atomic_with(&self.path(stage, key, ext), |tmp| {
+            let mut f = fs::File::create(tmp).map_err(|e| e.to_string())?;
+            f.write_all(&header).map_err(|e| e.to_string())?;
+            f.write_all(&payload).map_err(|e| e.to_string())
+        })?;
+        let mut h = blake3::Hasher::new();
+        h.update(&header);
+        h.update(&payload);
+        let hash = h.finalize().to_hex().to_string();
+        if let Some(mut m) = self.read_manifest(stage, key) {
+            if m.key == key.hex() && m.stage == stage && m.files.get(ext) != Some(&hash) {
+                m.files.insert(ext.to_string(), hash.clone());
+                self.commit(&m)?;
+            }
+        }
+        Ok(hash)
     }
 
     /// Writes the manifest, which completes the entry. Call after every data file is in place.
@@ -264,7 +513,11 @@ impl Store {
             .flatten()
             .flatten()
             .map(|e| e.path())
-            .filter(|p| p.is_dir() && p.file_name().is_some_and(|n| n != "quarantine"))
+            .filter(|p| {
+                p.is_dir()
+                    && p.file_name()
+                        .is_some_and(|n| n != "quarantine" && n != "locks")
+            })
             .collect();
         dirs.sort();
         dirs
@@ -286,7 +539,7 @@ impl Store {
         let mut out = Vec::new();
         for dir in self.stage_dirs() {
             for f in Self::files(&dir) {
-                if f.extension().is_some_and(|e| e == "json") {
+                if f.extension().is_some_and(|e| e == "json") && !is_temp(&f) {
                     if let Some(m) = fs::read(&f)
                         .ok()
                         .and_then(|b| serde_json::from_slice::<Manifest>(&b).ok())
@@ -299,37 +552,131 @@ impl Store {
         out
     }
 
-    /// Checks every file listed by every manifest against its recorded blake3 (and codec
-    /// checksums for artifacts). Bad files are quarantined (and so recomputed on the next run).
+    /// `check(true)`: verify and repair.
     pub fn verify(&self) -> VerifyReport {
+        self.check(true)
+    }
+
+    /// Checks every manifest (parses, names its own stage and key) and every file it lists (blake3
+    /// as recorded, codec header and checksum for `bin`/`sum`/... artifacts). With `repair`: bad
+    /// files are quarantined and dropped from their manifest (a manifest left with no file, or one
+    /// that is itself bad, is removed), so the next run recomputes exactly what is missing and a
+    /// second `check` is clean; temporary files of dead writers are removed. Entries whose compute
+    /// lock another process holds are skipped while repairing (they are being rewritten).
+    pub fn check(&self, repair: bool) -> VerifyReport {
         let mut r = VerifyReport::default();
-        for m in self.entries() {
-            r.entries += 1;
-            let Some(key) = Key::from_hex(&m.key) else {
-                r.bad.push(format!("{}/{}.json: bad key", m.stage, m.key));
-                continue;
-            };
-            for (ext, want) in &m.files {
-                let path = self.path(&m.stage, &key, ext);
-                let problem = match fs::read(&path) {
-                    Err(e) => Some(format!("unreadable: {e}")),
-                    Ok(bytes) => {
-                        if blake3::hash(&bytes).to_hex().as_str() != want {
-                            Some("blake3 differs from manifest".to_string())
-                        } else if ext == "bin" || ext == "sum" {
-                            codec::verify(&bytes).err()
-                        } else {
-                            None
+        for dir in self.stage_dirs() {
+            let stage = dir
+                .file_name()
+                .map(|s| s.to_string_lossy().to_string())
+                .unwrap_or_default();
+            let files = Self::files(&dir);
+            for f in &files {
+                let name = f
+                    .file_name()
+                    .map(|s| s.to_string_lossy().to_string())
+                    .unwrap_or_default();
+                if name.starts_with(".tmp-") {
+                    if !writer_alive(&name, f) {
+                        r.stale_temp += 1;
+                        if repair {
+                            let _ = fs::remove_file(f);
                         }
                     }
+                    continue;
+                }
+                let stem = name.split('.').next().unwrap_or("");
+                if !name.ends_with(".json") {
+                    if !dir.join(format!("{stem}.json")).is_file() {
+                        r.incomplete += 1;
+                    }
+                    continue;
+                }
+                r.entries += 1;
+                let Some(key) = Key::from_hex(stem) else {
+                    r.bad.push(format!("{}: not a key", f.display()));
+                    if repair {
+                        self.quarantine(f);
+                    }
+                    continue;
                 };
-                match problem {
-                    None => r.files_ok += 1,
-                    Some(p) => {
-                        r.bad.push(format!("{}: {p}", path.display()));
-                        if path.exists() {
-                            self.quarantine(&path);
+                let _guard = if repair {
+                    match self.try_lock_entry(&stage, &key) {
+                        Some(g) => g,
+                        None => {
+                            r.busy += 1;
+                            continue;
                         }
+                    }
+                } else {
+                    None
+                };
+                let manifest = fs::read(f)
+                    .map_err(|e| format!("unreadable manifest: {e}"))
+                    .and_then(|b| {
+                        serde_json::from_slice::<Manifest>(&b)
+                            .map_err(|e| format!("unparseable manifest: {e}"))
+                    })
+                    .and_then(|m| {
+                        if m.key == stem && m.stage == stage {
+                            Ok(m)
+                        } else {
+                            Err(format!("manifest of {}/{} (foreign)", m.stage, m.key))
+                        }
+                    });
+                let mut m = match manifest {
+                    Ok(m) => m,
+                    Err(reason) => {
+                        r.bad.push(format!("{}: {reason}", f.display()));
+                        if repair {
+                            self.quarantine(f);
+                            r.manifests_fixed += 1;
+                        }
+                        continue;
+                    }
+                };
+                let mut dropped = false;
+                for (ext, want) in m.files.clone() {
+                    let path = self.path(&stage, &key, &ext);
+                    let problem = match fs::read(&path) {
+                        Err(e) => Some(format!("unreadable: {e}")),
+                        Ok(bytes) => {
+                            if blake3::hash(&bytes).to_hex().as_str() != want {
+                                Some(
+                                    "blake3 differs from manifest (truncated, corrupt or foreign)"
+                                        .to_string(),
+                                )
+                            } else if bytes.starts_with(&codec::MAGIC)
+                                || ext == "bin"
+                                || ext == "sum"
+                            {
+                                codec::verify(&bytes).err()
+                            } else {
+                                None
+                            }
+                        }
+                    };
+                    match problem {
+                        None => r.files_ok += 1,
+                        Some(p) => {
+                            r.bad.push(format!("{}: {p}", path.display()));
+                            if repair {
+                                if path.exists() {
+                                    self.quarantine(&path);
+                                }
+                                m.files.remove(&ext);
+                                dropped = true;
+                            }
+                        }
+                    }
+                }
+                if dropped {
+                    r.manifests_fixed += 1;
+                    if m.files.is_empty() {
+                        let _ = fs::remove_file(f);
+                    } else if let Err(e) = self.commit(&m) {
+                        r.bad
+                            .push(format!("{}: cannot rewrite manifest: {e}", f.display()));
                     }
                 }
             }
@@ -358,17 +705,34 @@ impl Store {
                     .map(|s| s.to_string_lossy().to_string())
                     .unwrap_or_default();
                 if name.starts_with(".tmp-") {
-                    remove(&f);
+                    // A live writer's temp file is about to be renamed into place.
+                    if !writer_alive(&name, &f) {
+                        remove(&f);
+                    }
                     continue;
                 }
                 let stem = name.split('.').next().unwrap_or("");
                 if !dir.join(format!("{stem}.json")).is_file() {
-                    remove(&f);
+                    // Skip entries another process is computing right now (lock held).
+                    let stage = dir
+                        .file_name()
+                        .map(|s| s.to_string_lossy().to_string())
+                        .unwrap_or_default();
+                    let busy = Key::from_hex(stem)
+                        .is_some_and(|k| self.try_lock_entry(&stage, &k).is_none());
+                    if !busy {
+                        remove(&f);
+                    }
                 }
             }
         }
         r
     }
+}
+
+fn is_temp(p: &Path) -> bool {
+    p.file_name()
+        .is_some_and(|n| n.to_string_lossy().starts_with(".tmp-"))
 }
 
 #[cfg(test)]
@@ -410,11 +774,19 @@ mod tests {
 
         // An orphan (no manifest) and a temp file are garbage.
         s.put("build", &key(2), "bin", &5u8).unwrap();
-        fs::write(dir.path().join("build").join(".tmp-1-0-x.bin"), b"x").unwrap();
+        // Writer pid above Linux's pid_max: dead, so its temp file is garbage.
+        fs::write(dir.path().join("build").join(".tmp-4999999-0-x.bin"), b"x").unwrap();
+        // A live writer's (ours) temp file is left alone.
+        let live = dir
+            .path()
+            .join("build")
+            .join(format!(".tmp-{}-0-y.bin", std::process::id()));
+        fs::write(&live, b"y").unwrap();
         let g = s.gc();
         assert_eq!(g.removed_files, 2);
         assert!(s.path("build", &k, "bin").is_file());
         assert!(!s.path("build", &key(2), "bin").exists());
+        assert!(live.exists());
     }
 
     #[test]

@@ -1,0 +1,368 @@
+//! Memory estimate of a chain, checked before anything is loaded, so a scene too large for the
+//! machine fails early with the estimate in the message (exit 2) instead of being killed by the
+//! kernel's OOM killer halfway through a sweep.
+//!
+//! Model: `peak = BASE_BYTES + triangles * sum(bytes_per_triangle[stage] for the chain's stages)
+//! + rays * BYTES_PER_RAY`. Each constant is the growth of the peak resident set per triangle when
+//! the stage is added to a chain (the runner keeps the scene and every BVH of a chain in memory
+//! until the next scene, so the stages' shares add up rather than overlap).
+//!
+//! Calibration (release build, `/usr/bin/time -v` "Maximum resident set size" of `bvhlab eval
+//! --no-cache --repeat 1 --threads 2`, 2026-11-22; gen:sphere at n = 1k, 200k, 800k): baseline 12.5
+//! MiB at 1k triangles. Load + build, growth per triangle 200k -> 800k: binned-sah 222 B, sweep-sah
+//! 226, ploc 227, lbvh (+ encode) 231, aac (+ encode) 242; at 200k from the baseline: binned 186,
+//! sweep-sah leaf=1 259. Files (binned-sah): stanford_bunny 213, conference 226 (tobj's arrays add
+//! ~40 over a generated scene). +collapse: 13-40. +ibo (max_passes=2, after sweep-sah leaf=1): 156
+//! at 200k, 163 at 50k. Random rays: nothing per triangle, ~37 B per ray. The constants below are
+//! these shares rounded up by ~20% (binned 800k: estimate 264 MB, measured 179 MB; sweep leaf=1 +
+//! ibo 200k: 117 vs 93). `layout` could not be measured here (the stage is being written in
+//! parallel): its constant is derived from the layouts' sizes (Kilian 6.2: at most the BVH2's 32
+//! bytes per node, ~2 nodes per triangle, plus build buffers) and should be re-measured.
+use crate::error::{Error, Result};
+use crate::registry::Registry;
+use crate::stages::{ChainSpec, RaySpec, SceneSource};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::io::{BufRead, Read};
+
+/// The stages with a per-triangle share, in chain order.
+pub const STAGES: [&str; 7] = [
+    "load", "encode", "build", "optimize", "compact", "layout", "measure",
+];
+
+/// Process baseline (binary, rayon pools, allocator): 12.5 MiB measured, rounded up.
+pub const BASE_BYTES: u64 = 16 << 20;
+
+/// Per ray traced (ray, hit record, counters, heat map pixel; shadow rays include their primary
+/// pass): ~37 B measured, rounded up.
+pub const BYTES_PER_RAY: u64 = 64;
+
+/// Text bytes per triangle of an OBJ file: 33-47 on the shared scenes (bunny 34.7, armadillo 46.7,
+/// sibenik 33.2, breakfast_room 36.9, conference 37.5); the low end overestimates the count.
+pub const OBJ_TEXT_BYTES_PER_TRIANGLE: u64 = 30;
+
+/// Peak growth per triangle when `stage` is in the chain (see the module comment).
+pub fn bytes_per_triangle(stage: &str) -> f64 {
+    match stage {
+        // The scene (36 B/triangle), its serialized artifact while it is written, and for files
+        // tobj's vertex and index arrays while parsing (~40).
+        "load" => 110.0,
+        // Codes + order (12-16 B) and the radix sort's buffers (aac/lbvh minus binned: 9-20).
+        "encode" => 25.0,
+        // Boxes + centres (36 B), the builder's work arrays, the BVH (~2 nodes x 32 B + 4 B index
+        // for leaf=1) and its artifact bytes (load + build: 186-259 measured).
+        "build" => 200.0,
+        // DynTree (explicit children, parents, boxes), the search queues and the output BVH (156-163).
+        "optimize" => 190.0,
+        // The collapsed BVH and its artifact (13-40).
+        "compact" => 45.0,
+        // Not measured (see the module comment).
+        "layout" => 100.0,
+        // Traversal reads the scene and BVH counted above (rays are counted per ray).
+        "measure" => 10.0,
+        _ => 0.0,
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct MemoryEstimate {
+    pub triangles: u64,
+    /// Whether `triangles` is exact (generators with an exact count, uncompressed OBJ files) or an
+    /// estimate (approximate generator counts, `.obj.gz` from its uncompressed size).
+    pub triangles_exact: bool,
+    /// Stages of the chain -> bytes per triangle.
+    pub bytes_per_triangle: BTreeMap<String, f64>,
+    pub rays: u64,
+    pub peak_bytes: u64,
+}
+
+/// The chain's stages that have a per-triangle share. `layout` is added by callers whose chain has a
+/// layout stage.
+pub fn chain_stages(spec: &ChainSpec, registry: &Registry) -> Vec<&'static str> {
+    let mut out = vec!["load"];
+    let codes = registry
+        .get(&spec.build)
+        .map(|b| b.codes.is_some())
+        .unwrap_or(false);
+    if codes {
+        out.push("encode");
+    }
+    out.push("build");
+    if spec.optimize.is_some() {
+        out.push("optimize");
+    }
+    if spec.compact != "none" {
+        out.push("compact");
+    }
+    if spec.layout.is_some() {
+        out.push("layout");
+    }
+    if spec.rays.is_some() {
+        out.push("measure");
+    }
+    out
+}
+
+fn ray_count(r: &RaySpec) -> u64 {
+    match *r {
+        RaySpec::Primary { width, height } => width as u64 * height as u64,
+        // Primary rays first, then one shadow ray per hit.
+        RaySpec::Shadow { width, height } => 2 * width as u64 * height as u64,
+        RaySpec::Random { count } => count as u64,
+    }
+}
+
+/// Estimate for a chain; None when the triangle count cannot be told without loading the scene
+/// (a generator without an `n`-like parameter; such generators are small).
+pub fn chain_estimate(spec: &ChainSpec, stages: &[&str]) -> Result<Option<MemoryEstimate>> {
+    Ok(triangle_count(&spec.source)?.map(|count| estimate(spec, stages, count)))
+}
+
+/// Estimate for a chain over a scene of `(triangles, exact)` (from `triangle_count`).
+pub fn estimate(
+    spec: &ChainSpec,
+    stages: &[&str],
+    (triangles, exact): (u64, bool),
+) -> MemoryEstimate {
+    let bpt: BTreeMap<String, f64> = stages
+        .iter()
+        .map(|s| (s.to_string(), bytes_per_triangle(s)))
+        .collect();
+    let rays = spec.rays.as_ref().map(ray_count).unwrap_or(0);
+    let per_tri: f64 = bpt.values().sum();
+    let peak = BASE_BYTES as f64 + triangles as f64 * per_tri + (rays * BYTES_PER_RAY) as f64;
+    MemoryEstimate {
+        triangles,
+        triangles_exact: exact,
+        bytes_per_triangle: bpt,
+        rays,
+        peak_bytes: peak.ceil() as u64,
+    }
+}
+
+/// Triangles of a scene without loading it: generators from their parameters, `.obj` files by
+/// streaming their `f` lines (a face of k vertices is k - 2 triangles), `.obj.gz` files from the
+/// uncompressed size in the gzip trailer (ISIZE, mod 2^32; at least 3x the compressed size) over
+/// `OBJ_TEXT_BYTES_PER_TRIANGLE`.
+pub fn triangle_count(source: &SceneSource) -> Result<Option<(u64, bool)>> {
+    match source {
+        SceneSource::Gen(g) => {
+            let canon = bvhlab_geom::gen::canonical_spec(g)?;
+            Ok(gen_triangles(&canon))
+        }
+        SceneSource::File(path) => {
+            let err = |e: std::io::Error| {
+                Error::input(format!("{}: cannot read scene: {e}", path.display()))
+            };
+            let mut f = std::fs::File::open(path).map_err(err)?;
+            let mut magic = [0u8; 2];
+            let n = f.read(&mut magic).map_err(err)?;
+            if n == 2 && magic == [0x1f, 0x8b] {
+                use std::io::{Seek, SeekFrom};
+                let len = f.seek(SeekFrom::End(0)).map_err(err)?;
+                let mut isize = [0u8; 4];
+                let trailer = if len >= 4 {
+                    f.seek(SeekFrom::End(-4)).map_err(err)?;
+                    f.read_exact(&mut isize).map_err(err)?;
+                    u32::from_le_bytes(isize) as u64
+                } else {
+                    0
+                };
+                let text = trailer.max(3 * len);
+                return Ok(Some((text / OBJ_TEXT_BYTES_PER_TRIANGLE, false)));
+            }
+            let f = std::fs::File::open(path).map_err(err)?;
+            let mut r = std::io::BufReader::with_capacity(1 << 16, f);
+            let mut line = Vec::new();
+            let mut tris = 0u64;
+            loop {
+                line.clear();
+                if r.read_until(b'\n', &mut line).map_err(err)? == 0 {
+                    break;
+                }
+                if line.starts_with(b"f ") || line.starts_with(b"f\t") {
+                    let verts = line[1..]
+                        .split(|b| b.is_ascii_whitespace())
+                        .filter(|t| !t.is_empty())
+                        .count() as u64;
+                    tris += verts.saturating_sub(2);
+                }
+            }
+            Ok(Some((tris, true)))
+        }
+    }
+}
+
+/// Triangle count of a canonical generator spec `name:k=v,...` (see `bvhlab scenes`).
+fn gen_triangles(canon: &str) -> Option<(u64, bool)> {
+    let (name, rest) = canon.split_once(':').unwrap_or((canon, ""));
+    let params: BTreeMap<&str, f64> = rest
+        .split(',')
+        .filter_map(|kv| kv.split_once('='))
+        .filter_map(|(k, v)| v.parse::<f64>().ok().map(|v| (k, v)))
+        .collect();
+    let p = |k: &str| params.get(k).copied();
+    // Same rounding as the generators' grid size (gen.rs grid_k).
+    let grid = |n: f64, per: f64| ((n / per).sqrt().round().max(1.0)) as u64;
+    Some(match name {
+        "sphere" => {
+            let k = grid(p("n")?, 12.0);
+            (12 * k * k, true)
+        }
+        "outlier" => {
+            let k = grid(p("n")?, 12.0);
+            (12 * k * k + 1, true)
+        }
+        "terrain" => {
+            let k = grid(p("n")?, 2.0);
+            (2 * k * k, true)
+        }
+        "hairball" | "degenerate" => (p("n")? as u64, true),
+        "city" => {
+            let b = p("blocks")? as u64;
+            (12 * b * b + 2, true)
+        }
+        // Generators added later: their `n` is a triangle count or close to one.
+        _ => (p("n")? as u64, false),
+    })
+}
+
+/// `MemAvailable` from /proc/meminfo (Linux), in bytes.
+pub fn mem_available() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = s.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// `123`, `512K`, `64M`, `2G`, `1.5G` (binary units, optional `B`/`iB`).
+pub fn parse_bytes(s: &str) -> Result<u64> {
+    let t = s.trim();
+    let upper = t.to_ascii_uppercase();
+    let body = upper
+        .strip_suffix("IB")
+        .or_else(|| upper.strip_suffix('B'))
+        .unwrap_or(&upper);
+    let (num, mult) = match body.chars().last() {
+        Some('K') => (&body[..body.len() - 1], 1u64 << 10),
+        Some('M') => (&body[..body.len() - 1], 1 << 20),
+        Some('G') => (&body[..body.len() - 1], 1 << 30),
+        Some('T') => (&body[..body.len() - 1], 1 << 40),
+        _ => (body, 1),
+    };
+    let v: f64 = num.trim().parse().map_err(|_| {
+        Error::input(format!(
+            "memory size `{s}`: expected bytes, e.g. 1000000, 512M or 2G"
+        ))
+    })?;
+    if !v.is_finite() || v < 0.0 {
+        return Err(Error::input(format!("memory size `{s}` must be positive")));
+    }
+    Ok((v * mult as f64) as u64)
+}
+
+/// The memory a chain may use: `--max-memory` > `BVHLAB_MAX_MEMORY` > MemAvailable; None when
+/// none is known (no check).
+pub fn memory_limit(cli: Option<&str>) -> Result<Option<(u64, String)>> {
+    if let Some(s) = cli {
+        return Ok(Some((parse_bytes(s)?, "--max-memory".into())));
+    }
+    if let Ok(s) = std::env::var("BVHLAB_MAX_MEMORY") {
+        if !s.trim().is_empty() {
+            return Ok(Some((parse_bytes(&s)?, "BVHLAB_MAX_MEMORY".into())));
+        }
+    }
+    Ok(mem_available().map(|b| (b, "MemAvailable".into())))
+}
+
+fn mib(b: u64) -> String {
+    format!("{:.1} MiB", b as f64 / (1u64 << 20) as f64)
+}
+
+/// An input error (exit 2) when the estimate exceeds the limit, naming the estimate and its parts.
+pub fn check(scene: &str, est: &MemoryEstimate, limit: Option<&(u64, String)>) -> Result<()> {
+    let Some((limit, source)) = limit else {
+        return Ok(());
+    };
+    if est.peak_bytes <= *limit {
+        return Ok(());
+    }
+    let parts: Vec<String> = est
+        .bytes_per_triangle
+        .iter()
+        .map(|(s, b)| format!("{s} {b:.0}"))
+        .collect();
+    Err(Error::input(format!(
+        "{scene}: not enough memory: estimated peak {} for {}{} triangles (bytes per triangle: {}; \
+         + {} rays) exceeds {} ({source}); use a smaller scene or fewer stages, or raise the limit \
+         with --max-memory / BVHLAB_MAX_MEMORY",
+        mib(est.peak_bytes),
+        if est.triangles_exact { "" } else { "~" },
+        est.triangles,
+        parts.join(", "),
+        est.rays,
+        mib(*limit),
+    )))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn generator_counts_match_the_generators() {
+        for spec in [
+            "sphere:n=20000",
+            "sphere:n=7",
+            "terrain:n=5000",
+            "hairball:n=1000",
+            "city:blocks=7",
+            "outlier:n=3000,e=4",
+            "degenerate:n=333",
+        ] {
+            let canon = bvhlab_geom::gen::canonical_spec(spec).unwrap();
+            let (n, exact) = gen_triangles(&canon).unwrap();
+            let real = bvhlab_geom::gen::generate(spec).unwrap().triangles.len() as u64;
+            assert!(exact);
+            assert_eq!(n, real, "{spec}");
+        }
+    }
+
+    #[test]
+    fn obj_faces_are_counted_by_streaming() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.obj");
+        std::fs::write(
+            &p,
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 1 2 4 3\n# f 1 2 3\n",
+        )
+        .unwrap();
+        let n = triangle_count(&SceneSource::File(p)).unwrap();
+        assert_eq!(n, Some((3, true)));
+    }
+
+    #[test]
+    fn byte_sizes_parse() {
+        assert_eq!(parse_bytes("1000").unwrap(), 1000);
+        assert_eq!(parse_bytes("2K").unwrap(), 2048);
+        assert_eq!(parse_bytes("1.5G").unwrap(), 3 << 29);
+        assert_eq!(parse_bytes("64MiB").unwrap(), 64 << 20);
+        assert!(parse_bytes("lots").is_err());
+    }
+
+    #[test]
+    fn too_large_is_an_input_error_with_the_estimate() {
+        let spec = ChainSpec::new("gen:sphere:n=20000", "binned-sah");
+        let reg = Registry::standard();
+        let est = chain_estimate(&spec, &chain_stages(&spec, &reg))
+            .unwrap()
+            .unwrap();
+        assert_eq!(est.triangles, 12 * 41 * 41);
+        assert!(est.peak_bytes > BASE_BYTES);
+        assert!(check("s", &est, Some(&(u64::MAX, "x".into()))).is_ok());
+        let e = check("s", &est, Some(&(1000, "--max-memory".into()))).unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        assert!(e.message().contains("estimated peak"), "{e}");
+        assert!(e.message().contains("build 200"), "{e}");
+    }
+}
