@@ -59,3 +59,12 @@ bench-opt RUNS="5":
 # What CI runs.
 ci:
     bash .ci/run
+
+# Fuzz a target (obj: the OBJ/.obj.gz loader; soup: triangle soups through every builder and layout)
+# for SECONDS; installs cargo-fuzz when missing. Crashes land in fuzz/artifacts/TARGET/.
+fuzz TARGET="soup" SECONDS="60":
+    bash scripts/fuzz.sh {{TARGET}} {{SECONDS}}
+
+# Every builder, compaction and layout vs brute force on the shared scenes with 10^5 random rays.
+oracle-large *ARGS="":
+    cargo run --release -p bvhlab-pipeline --example oracle_large -- {{ARGS}}

@@ -65,6 +65,7 @@ fn main() {
             max_passes: 2,
             layouts: true,
             collapse: true,
+            skip_builders: &[],
         };
         let mut last = Instant::now();
         let mut tally = methods::Tally::default();
