@@ -68,3 +68,9 @@ fuzz TARGET="soup" SECONDS="60":
 # Every builder, compaction and layout vs brute force on the shared scenes with 10^5 random rays.
 oracle-large *ARGS="":
     cargo run --release -p bvhlab-pipeline --example oracle_large -- {{ARGS}}
+
+# Run an experiment on a Slurm cluster: a job array of TASKS shards over one shared cache (CACHE must be on
+# a filesystem every node sees) plus a report job after it. Re-run to compute only what is missing.
+cluster EXP="experiments/quick.toml" TASKS="16" *ARGS="":
+    cargo build --release
+    ./target/release/bvhlab slurm {{EXP}} --tasks {{TASKS}} --submit {{ARGS}}

@@ -8,6 +8,8 @@ use std::collections::BTreeMap;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
+mod slurm;
+
 #[derive(Parser)]
 #[command(name = "bvhlab", version, about = "BVH research workbench: cached stage pipeline, sweeps and reports")]
 struct Cli {
@@ -33,6 +35,45 @@ enum Cmd {
         /// MemAvailable). A sweep whose estimate exceeds it fails before loading anything (exit 2).
         #[arg(long, value_name = "BYTES")]
         max_memory: Option<String>,
+    },
+    /// Write (and with --submit submit) a Slurm job array that runs the experiment's shards against
+    /// one shared cache, plus a report job that runs after the array (afterany).
+    Slurm {
+        experiment: PathBuf,
+        /// Array tasks: task i runs `sweep EXP --shard i/N`.
+        #[arg(long)]
+        tasks: u32,
+        /// The shared cache every task reads and writes (default: $BVHLAB_CACHE, else ./cache);
+        /// it must be on a filesystem all nodes see.
+        #[arg(long)]
+        cache: Option<PathBuf>,
+        #[arg(long)]
+        partition: Option<String>,
+        /// Time limit per task (sbatch --time, e.g. 2:00:00).
+        #[arg(long)]
+        time: Option<String>,
+        /// Node features to pin (sbatch --constraint), e.g. one CPU model so timings compare.
+        #[arg(long)]
+        constraint: Option<String>,
+        #[arg(long)]
+        account: Option<String>,
+        /// Memory per task (sbatch --mem, e.g. 8G; default: the largest chain's estimate + 25%).
+        #[arg(long)]
+        mem: Option<String>,
+        #[arg(long, default_value_t = 1)]
+        cpus_per_task: u32,
+        /// Any other sbatch option for both jobs, e.g. --sbatch-arg=--qos=short (repeatable).
+        #[arg(long = "sbatch-arg", value_name = "OPTION", allow_hyphen_values = true)]
+        sbatch_arg: Vec<String>,
+        /// Where the scripts and task logs go (default: <out>/slurm).
+        #[arg(long)]
+        dir: Option<PathBuf>,
+        /// Report directory (default: reports/<experiment name>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Submit with sbatch (otherwise only write the scripts) and print the job ids.
+        #[arg(long)]
+        submit: bool,
     },
     /// Run one chain and print its result.
     Eval {
@@ -139,7 +180,11 @@ fn parse_sets(set: &[String]) -> Result<BTreeMap<String, String>> {
 /// exceeds the limit (`--max-memory` > `BVHLAB_MAX_MEMORY` > MemAvailable). Returns the largest
 /// estimate (None if no scene's size is known without loading it).
 fn check_memory(chains: &[ChainSpec], max_memory: Option<&str>) -> Result<Option<estimate::MemoryEstimate>> {
-    let limit = estimate::memory_limit(max_memory)?;
+    largest_estimate(chains, estimate::memory_limit(max_memory)?.as_ref())
+}
+
+/// The largest chain's memory estimate; with a limit, fails (exit 2) if a chain exceeds it.
+fn largest_estimate(chains: &[ChainSpec], limit: Option<&(u64, String)>) -> Result<Option<estimate::MemoryEstimate>> {
     let registry = Registry::standard();
     let mut worst: Option<estimate::MemoryEstimate> = None;
     let mut counts: BTreeMap<String, Option<(u64, bool)>> = BTreeMap::new();
@@ -150,7 +195,7 @@ fn check_memory(chains: &[ChainSpec], max_memory: Option<&str>) -> Result<Option
         }
         let Some(count) = counts[&c.scene] else { continue };
         let est = estimate::estimate(c, &estimate::chain_stages(c, &registry), count);
-        estimate::check(&c.scene, &est, limit.as_ref())?;
+        estimate::check(&c.scene, &est, limit)?;
         if worst.as_ref().is_none_or(|w| est.peak_bytes > w.peak_bytes) {
             worst = Some(est);
         }
@@ -182,6 +227,29 @@ fn run(cli: Cli) -> Result<()> {
             });
             println!("{summary}");
             Ok(())
+        }
+        Cmd::Slurm {
+            experiment, tasks, cache, partition, time, constraint, account, mem, cpus_per_task, sbatch_arg, dir, out, submit,
+        } => {
+            let exp = Experiment::load(&experiment, &Registry::standard())?;
+            let peak = largest_estimate(&exp.chains(), None)?.map(|e| e.peak_bytes);
+            let args = slurm::SlurmArgs {
+                experiment,
+                tasks,
+                cache: store::resolve_root(cache.as_deref()),
+                partition,
+                time,
+                constraint,
+                account,
+                mem,
+                cpus_per_task,
+                dir,
+                out,
+                sbatch_args: sbatch_arg,
+                submit,
+            };
+            let derived = slurm::Derived { name: exp.name.clone(), peak_bytes: peak, max_shard_seconds: None };
+            slurm::run(&args, &derived)
         }
         Cmd::Eval { scene, build, encode, optimize, compact, set, rays, layout, focus, threads, repeat, cache, no_cache, json, max_memory } => {
             let mut spec = ChainSpec::new(&scene, &build);
