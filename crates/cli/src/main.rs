@@ -35,6 +35,29 @@ enum Cmd {
         /// MemAvailable). A sweep whose estimate exceeds it fails before loading anything (exit 2).
         #[arg(long, value_name = "BYTES")]
         max_memory: Option<String>,
+        /// List every node of the experiment's stage graph (stage, key, cached or missing,
+        /// estimated seconds and memory) without running anything; with --shards N also the owner
+        /// shard of each node and the balance.
+        #[arg(long, conflicts_with_all = ["shard", "status", "report_only"])]
+        plan: bool,
+        /// Compute only shard I of N (1 <= I <= N) of the stage graph, e.g. 3/16: the same plan and
+        /// N give the same shards on any machine. Writes no report.
+        #[arg(long, value_name = "I/N", conflicts_with_all = ["status", "report_only"])]
+        shard: Option<String>,
+        /// Number of shards for --plan and --status (owner of each node).
+        #[arg(long, value_name = "N")]
+        shards: Option<usize>,
+        /// Read only the cache: done / missing per chain (and with --shards N the shard owning each
+        /// missing node).
+        #[arg(long, conflicts_with = "report_only")]
+        status: bool,
+        /// Build the report from the cache without computing anything; chains with a missing
+        /// stage are left out and listed (exit 3 when any is missing).
+        #[arg(long)]
+        report_only: bool,
+        /// With --plan / --status: print the nodes / chains as one JSON document.
+        #[arg(long)]
+        json: bool,
     },
     /// Write (and with --submit submit) a Slurm job array that runs the experiment's shards against
     /// one shared cache, plus a report job that runs after the array (afterany).
@@ -205,8 +228,40 @@ fn largest_estimate(chains: &[ChainSpec], limit: Option<&(u64, String)>) -> Resu
 
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
-        Cmd::Sweep { experiment, cache, threads, out, max_memory } => {
+        Cmd::Sweep { experiment, cache, threads, out, max_memory, plan, shard, shards, status, report_only, json } => {
             let exp = Experiment::load(&experiment, &Registry::standard())?;
+            if shards == Some(0) {
+                return Err(Error::input("--shards must be at least 1"));
+            }
+            if plan || status {
+                let store = Store::open(store::resolve_root(cache.as_deref()))?;
+                let mut runner = Runner::new(store);
+                let p = bvhlab_pipeline::plan::plan(&exp, &mut runner)?;
+                return if plan { print_plan(&exp, &p, shards, json) } else { print_status(&exp, &p, &runner, shards, json) };
+            }
+            if let Some(s) = shard {
+                let (i, n) = bvhlab_pipeline::plan::parse_shard(&s)?;
+                check_memory(&exp.chains(), max_memory.as_deref())?;
+                let store = Store::open(store::resolve_root(cache.as_deref()))?;
+                let mut runner = Runner::new(store);
+                let progress = std::io::stderr().is_terminal();
+                let r = bvhlab_pipeline::with_threads(threads, || {
+                    bvhlab_pipeline::plan::run_shard(&exp, &mut runner, i, n, progress)
+                })??;
+                println!(
+                    "{}",
+                    serde_json::json!({
+                        "experiment": exp.name, "shard": r.shard, "shards": r.shards, "owned": r.owned,
+                        "owned_cached": r.owned_cached, "estimated_seconds": r.estimated_seconds,
+                        "computed": r.counts.computed, "cached": r.counts.cached, "per_stage": r.counts.per_stage,
+                        "seconds": r.seconds,
+                    })
+                );
+                return Ok(());
+            }
+            if report_only {
+                return report_only_sweep(&exp, &experiment, cache.as_deref(), threads, out);
+            }
             check_memory(&exp.chains(), max_memory.as_deref())?;
             let store = Store::open(store::resolve_root(cache.as_deref()))?;
             let mut runner = Runner::new(store);
@@ -399,6 +454,206 @@ fn run(cli: Cli) -> Result<()> {
             println!("    rays=[{}]  random rays each candidate is timed on", bvhlab_pipeline::stages::AUTO_RAYS);
             Ok(())
         }
+    }
+}
+
+fn mib(b: u64) -> String {
+    format!("{:.0} MiB", b as f64 / (1u64 << 20) as f64)
+}
+
+/// `sweep --plan`: every node, totals, and with N shards the owners and the balance.
+fn print_plan(exp: &Experiment, p: &bvhlab_pipeline::plan::ExperimentPlan, shards: Option<usize>, json: bool) -> Result<()> {
+    use bvhlab_pipeline::plan::{imbalance, partition, shard_seconds};
+    let owner = shards.map(|n| partition(p, n));
+    let missing: Vec<_> = p.missing().collect();
+    let per_shard = owner.as_ref().map(|o| shard_seconds(p, o, shards.unwrap_or(1)));
+    let summary = serde_json::json!({
+        "experiment": exp.name,
+        "chains": p.chains.len(),
+        "nodes": p.nodes.len(),
+        "cached": p.nodes.len() - missing.len(),
+        "missing": missing.len(),
+        "estimated_seconds": p.total_seconds(),
+        "missing_estimated_seconds": missing.iter().fold(0.0, |a, n| a + n.est_seconds),
+        "peak_memory_bytes": p.peak_bytes(),
+        "shards": shards,
+        "shard_seconds": per_shard,
+        "imbalance": per_shard.as_ref().map(|s| imbalance(s)),
+    });
+    if json {
+        let nodes: Vec<serde_json::Value> = p
+            .nodes
+            .iter()
+            .enumerate()
+            .map(|(i, n)| {
+                let mut v = serde_json::to_value(n).unwrap_or_default();
+                if let (Some(o), Some(m)) = (&owner, v.as_object_mut()) {
+                    m.insert("shard".into(), (o[i] + 1).into());
+                }
+                v
+            })
+            .collect();
+        println!("{}", serde_json::json!({"summary": summary, "nodes": nodes}));
+        return Ok(());
+    }
+    println!("{:<9} {:<16} {:<7} {:>9} {:>9} {:>5}  scene / parameters", "stage", "key", "state", "est s", "est mem", "shard");
+    for (i, n) in p.nodes.iter().enumerate() {
+        let params: Vec<String> = n
+            .params
+            .iter()
+            .filter(|(k, _)| !matches!(k.as_str(), "content" | "candidates" | "c_t" | "c_i" | "repeat"))
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect();
+        println!(
+            "{:<9} {:<16} {:<7} {:>9.3} {:>9} {:>5}  {} {}",
+            n.stage,
+            &n.key.hex()[..16],
+            if n.cached { "cached" } else { "missing" },
+            n.est_seconds,
+            mib(n.est_bytes),
+            owner.as_ref().map(|o| (o[i] + 1).to_string()).unwrap_or_else(|| "-".into()),
+            bvhlab_pipeline::stages::scene_name(&n.scene),
+            params.join(",")
+        );
+    }
+    let mut by_stage: BTreeMap<&str, (usize, usize, f64)> = BTreeMap::new();
+    for n in &p.nodes {
+        let e = by_stage.entry(n.stage).or_default();
+        e.0 += 1;
+        e.1 += usize::from(!n.cached);
+        e.2 += n.est_seconds;
+    }
+    for (st, (all, miss, secs)) in &by_stage {
+        println!("# {st}: {all} nodes, {miss} missing, {secs:.1} s estimated");
+    }
+    if let Some(ps) = &per_shard {
+        let line: Vec<String> = ps.iter().map(|s| format!("{s:.1}")).collect();
+        println!("# shards (estimated s): {}; largest / mean = {:.3}", line.join(" "), imbalance(ps));
+    }
+    println!("{summary}");
+    Ok(())
+}
+
+/// `sweep --status`: done / missing per chain from the manifests alone.
+fn print_status(
+    exp: &Experiment,
+    p: &bvhlab_pipeline::plan::ExperimentPlan,
+    runner: &Runner,
+    shards: Option<usize>,
+    json: bool,
+) -> Result<()> {
+    use bvhlab_pipeline::plan::{chain_label, chain_status, partition};
+    let owner = shards.map(|n| partition(p, n));
+    let missing = chain_status(p, &runner.store);
+    let mut chains = Vec::new();
+    let mut per_shard: BTreeMap<usize, usize> = BTreeMap::new();
+    let mut nodes_missing = std::collections::BTreeSet::new();
+    for (ci, (c, miss)) in p.chains.iter().zip(&missing).enumerate() {
+        let m: Vec<serde_json::Value> = miss
+            .iter()
+            .map(|&i| {
+                nodes_missing.insert(i);
+                let n = &p.nodes[i];
+                serde_json::json!({"stage": n.stage, "key": n.key.hex(), "shard": owner.as_ref().map(|o| o[i] + 1)})
+            })
+            .collect();
+        let label = chain_label(c);
+        if !json {
+            if miss.is_empty() {
+                println!("done     {} {label}", bvhlab_pipeline::stages::scene_name(&c.scene));
+            } else {
+                let what: Vec<String> = miss
+                    .iter()
+                    .map(|&i| match &owner {
+                        Some(o) => format!("{} (shard {})", p.nodes[i].stage, o[i] + 1),
+                        None => p.nodes[i].stage.to_string(),
+                    })
+                    .collect();
+                println!("missing  {} {label}: {}", bvhlab_pipeline::stages::scene_name(&c.scene), what.join(", "));
+            }
+        }
+        chains.push(serde_json::json!({"chain": ci, "scene": c.scene, "label": label, "missing": m}));
+    }
+    if let Some(o) = &owner {
+        for &i in &nodes_missing {
+            *per_shard.entry(o[i] + 1).or_default() += 1;
+        }
+    }
+    let done = missing.iter().filter(|m| m.is_empty()).count();
+    let summary = serde_json::json!({
+        "experiment": exp.name,
+        "chains": p.chains.len(),
+        "done": done,
+        "missing": p.chains.len() - done,
+        "nodes": p.nodes.len(),
+        "nodes_missing": nodes_missing.len(),
+        "shards": shards,
+        "missing_per_shard": owner.as_ref().map(|_| per_shard.iter().map(|(k, v)| (k.to_string(), *v)).collect::<BTreeMap<_, _>>()),
+    });
+    if json {
+        println!("{}", serde_json::json!({"summary": summary, "chains": chains}));
+    } else {
+        println!("{summary}");
+    }
+    Ok(())
+}
+
+/// `sweep --report-only`: the report from complete chains only; exit 3 when any is missing.
+fn report_only_sweep(
+    exp: &Experiment,
+    experiment: &Path,
+    cache: Option<&Path>,
+    threads: Option<usize>,
+    out: Option<PathBuf>,
+) -> Result<()> {
+    use bvhlab_pipeline::plan::{chain_label, chain_status, plan};
+    let store = Store::open(store::resolve_root(cache))?;
+    let mut runner = Runner::new(store);
+    let p = plan(exp, &mut runner)?;
+    let missing = chain_status(&p, &runner.store);
+    let t0 = std::time::Instant::now();
+    let mut rows = Vec::new();
+    let mut missing_chains = Vec::new();
+    let mut last_scene: Option<&str> = None;
+    for (c, miss) in p.chains.iter().zip(&missing) {
+        if !miss.is_empty() {
+            let stages: Vec<&str> = miss.iter().map(|&i| p.nodes[i].stage).collect();
+            eprintln!("missing: {} {} ({})", c.scene, chain_label(c), stages.join(", "));
+            missing_chains.push(format!("{} {}", c.scene, chain_label(c)));
+            continue;
+        }
+        if last_scene.is_some_and(|s| s != c.scene) {
+            runner.forget();
+        }
+        last_scene = Some(&c.scene);
+        rows.push(bvhlab_pipeline::with_threads(threads, || runner.run_chain(c, &exp.name))??);
+    }
+    let out_dir = out.unwrap_or_else(|| PathBuf::from("reports").join(&exp.name));
+    let reference = reference_dir(experiment);
+    let report = bvhlab_report::write_report(&out_dir, &exp.name, &rows, reference.as_deref())
+        .map_err(|e| Error::internal(format!("report: {e}")))?;
+    println!(
+        "{}",
+        serde_json::json!({
+            "experiment": exp.name,
+            "computed": runner.counts.computed,
+            "cached": runner.counts.cached,
+            "rows": rows.len(),
+            "missing_chains": missing_chains,
+            "report": report.to_string_lossy(),
+            "seconds": t0.elapsed().as_secs_f64(),
+        })
+    );
+    if missing_chains.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::incomplete(format!(
+            "{} of {} chains are missing from the cache; the report holds the {} complete ones. Compute the rest \
+             (resubmit the same `bvhlab slurm` command, or `bvhlab sweep`) and run --report-only again",
+            missing_chains.len(),
+            p.chains.len(),
+            rows.len()
+        )))
     }
 }
 

@@ -1,5 +1,6 @@
 //! One error type for the pipeline and the CLI. Bad input (scene files, experiment files, unknown
-//! builders or parameters) exits with code 2; anything else is an internal failure (code 1).
+//! builders or parameters) exits with code 2; unfinished work (a report of an incomplete cache) with 3; anything else is an
+//! internal failure (code 1).
 use std::fmt;
 
 #[derive(Debug, Clone, PartialEq)]
@@ -8,6 +9,9 @@ pub enum Error {
     Input(String),
     /// Something failed that is not the user's fault (I/O on the cache, nondeterminism, ...).
     Internal(String),
+    /// The work is not finished (e.g. `sweep --report-only` with chains missing from the cache):
+    /// exit code 3, so a Slurm report job shows as failed and the user resubmits.
+    Incomplete(String),
 }
 
 impl Error {
@@ -17,15 +21,19 @@ impl Error {
     pub fn internal(msg: impl Into<String>) -> Self {
         Error::Internal(msg.into())
     }
+    pub fn incomplete(msg: impl Into<String>) -> Self {
+        Error::Incomplete(msg.into())
+    }
     pub fn exit_code(&self) -> i32 {
         match self {
             Error::Input(_) => 2,
             Error::Internal(_) => 1,
+            Error::Incomplete(_) => 3,
         }
     }
     pub fn message(&self) -> &str {
         match self {
-            Error::Input(m) | Error::Internal(m) => m,
+            Error::Input(m) | Error::Internal(m) | Error::Incomplete(m) => m,
         }
     }
 }

@@ -103,7 +103,7 @@ pub fn chain_stages(spec: &ChainSpec, registry: &Registry) -> Vec<&'static str> 
     out
 }
 
-fn ray_count(r: &RaySpec) -> u64 {
+pub fn ray_count(r: &RaySpec) -> u64 {
     match *r {
         RaySpec::Primary { width, height } => width as u64 * height as u64,
         // Primary rays first, then one shadow ray per hit.
@@ -365,4 +365,94 @@ mod tests {
         assert!(e.message().contains("estimated peak"), "{e}");
         assert!(e.message().contains("build 200"), "{e}");
     }
+}
+
+// ---- time ------------------------------------------------------------------------------------
+
+/// Estimated wall seconds to compute one node (all `repeat` runs, validation and writing), for
+/// plans and shard balancing (`crate::plan`). Deterministic: it depends only on the node's stage
+/// and parameters, the scene's triangle count and the rays, never on the machine or the cache.
+///
+/// Calibration (release build, 2 threads, 2026-11-25, this 2-core AMD EPYC VM): `compute_seconds`
+/// of every manifest of a cold `sweep experiments/quick.toml` (445 nodes, 1k-20k triangles), per
+/// (stage, method) the median of seconds / (repeat x triangles); measure per ray x log2(triangles).
+/// Medians in ns per triangle per repeat: load 164 (generated scenes; files parse slower, taken as
+/// 3x), encode morton 50 / emc64 67, build lbvh 141, spatial-median 187, binned-sah 224, bonsai 245,
+/// ploc 289, aac 419, sweep-sah 525, incremental 533, compact 81, optimize ibo 2442 (232-14934:
+/// passes vary), kensler 597, layout bvh2 60, qbvh 359, octree1 562, auto 3104 (once, not per
+/// repeat: x5 here). Measure in ns per ray per log2(triangles) per repeat: primary 4.1, random
+/// 13.0; with a layout (traced beside bvh2): bvh2 25, qbvh 43, octree/octree1 58, auto 35 (random).
+/// The spread within a method is 2-5x (hairball and city are far slower per ray than the sphere),
+/// so an estimate is good to a factor of a few per node; shards balance many nodes, where the
+/// errors average out.
+pub fn node_seconds(
+    stage: &str,
+    params: &BTreeMap<String, String>,
+    triangles: u64,
+    rays: u64,
+    layout: Option<&str>,
+) -> f64 {
+    let t = triangles.max(1) as f64;
+    let repeat: f64 = params
+        .get("repeat")
+        .and_then(|r| r.parse().ok())
+        .unwrap_or(1.0f64)
+        .max(1.0);
+    let p = |k: &str| params.get(k).map(String::as_str).unwrap_or("");
+    // Every node but a load reads its inputs from the cache (scene, BVH): ~20 ns per triangle,
+    // plus process-level overhead per node.
+    let overhead = 0.01 + if stage == "load" { 0.0 } else { 20e-9 * t };
+    let ns_per_tri = |ns: f64| ns * 1e-9 * t * repeat;
+    let work = match stage {
+        "load" => {
+            // Generated scenes are keyed by `gen`, files by `content`.
+            if params.contains_key("content") {
+                500e-9 * t
+            } else {
+                170e-9 * t
+            }
+        }
+        "encode" => ns_per_tri(if p("encoder") == "morton" { 50.0 } else { 70.0 }),
+        "build" => ns_per_tri(match p("builder") {
+            "lbvh" => 140.0,
+            "spatial-median" => 190.0,
+            "binned-sah" => 225.0,
+            "bonsai" => 250.0,
+            "ploc" => {
+                // PLOC's search window grows with the radius (thesis 3.6): r = 10 calibrated.
+                let r: f64 = p("radius").parse().unwrap_or(10.0);
+                290.0 * (0.5 + 0.05 * r)
+            }
+            "aac" => 420.0,
+            "sweep-sah" => 525.0,
+            "incremental" => 535.0,
+            _ => 400.0,
+        }),
+        "optimize" => ns_per_tri(match p("optimizer") {
+            "ibo" => 2500.0,
+            _ => 600.0,
+        }),
+        "compact" => ns_per_tri(80.0),
+        "layout" => match p("layout") {
+            "auto" => 15_000e-9 * t,
+            "bvh2" => ns_per_tri(60.0),
+            "qbvh" => ns_per_tri(360.0),
+            _ => ns_per_tri(600.0),
+        },
+        "measure" => {
+            let kind = p("rays").split(':').next().unwrap_or("");
+            let base = if kind == "random" { 13.0 } else { 4.1 };
+            let per_ray = match layout {
+                None => base,
+                Some("bvh2") => 2.0 * base,
+                Some("qbvh") => 3.3 * base,
+                Some("auto") => 2.7 * base,
+                Some(_) => 4.5 * base,
+            };
+            per_ray * 1e-9 * rays as f64 * t.log2().max(1.0) * repeat
+        }
+        "focus" => 30e-9 * t,
+        _ => 100e-9 * t,
+    };
+    overhead + work
 }

@@ -66,6 +66,17 @@ impl NodeDef {
     }
 }
 
+/// One node of a chain's stage graph: `Runner::chain_nodes`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NodeInfo {
+    pub stage: &'static str,
+    pub key: Key,
+    /// Input nodes (stage, key), strictly upstream.
+    pub inputs: Vec<(&'static str, Key)>,
+    /// Canonical parameters (what the key hashes besides stage, version and inputs).
+    pub params: BTreeMap<String, String>,
+}
+
 struct Plan {
     spec: ChainSpec,
     resolved: Resolved,
@@ -1205,6 +1216,74 @@ impl Runner {
         self.commit(&node, files, secs(t0))?;
         self.note("focus", node.key, true);
         Ok(Some(f))
+    }
+
+    // ---- single nodes (plans and shards, crate::plan) --------------------------------------------
+
+    /// The nodes of `spec`'s stage graph in chain order (load, encode, build, optimize, compact,
+    /// layout, measure, focus; absent stages skipped), with keys, inputs and parameters. Runs
+    /// nothing and reads nothing but a scene file's bytes (its key hashes the content).
+    pub fn chain_nodes(&mut self, spec: &ChainSpec) -> Result<Vec<NodeInfo>> {
+        let p = self.plan(spec)?;
+        let mut v = vec![p.load];
+        v.extend(p.encode);
+        v.push(p.build);
+        v.extend(p.optimize);
+        v.extend(p.compact);
+        v.extend(p.layout.map(|(n, _)| n));
+        v.extend(p.measure.map(|(n, _)| n));
+        v.extend(p.focus);
+        Ok(v
+            .into_iter()
+            .map(|n| NodeInfo {
+                stage: n.stage,
+                key: n.key,
+                inputs: n.inputs,
+                params: n.params,
+            })
+            .collect())
+    }
+
+    /// Makes sure the node of `spec` at `stage` is in the cache (computing it, and any missing
+    /// input, if needed), at the level a result row needs (summaries), under the same per-key
+    /// protocol as `run_chain`: a node another process is computing is waited for, not computed
+    /// twice. Errors if the chain has no such stage.
+    pub fn ensure_node(&mut self, spec: &ChainSpec, stage: &str) -> Result<()> {
+        let _locks = self.store.release_on_drop();
+        let plan = self.plan(spec)?;
+        let missing = || Error::internal(format!("chain has no {stage} stage"));
+        match stage {
+            "load" => {
+                self.scene_summary(&plan)?;
+            }
+            "encode" => {
+                self.encode_summary(&plan)?.ok_or_else(missing)?;
+            }
+            "build" => {
+                self.bvh_summary(&plan, Which::Build)?;
+            }
+            "optimize" => {
+                plan.optimize.as_ref().ok_or_else(missing)?;
+                self.bvh_summary(&plan, Which::Optimize)?;
+                self.optimize_info(&plan)?;
+            }
+            "compact" => {
+                plan.compact.as_ref().ok_or_else(missing)?;
+                self.bvh_summary(&plan, Which::Compact)?;
+            }
+            "layout" => {
+                self.layout_summary(&plan)?.ok_or_else(missing)?;
+            }
+            "measure" => {
+                plan.measure.as_ref().ok_or_else(missing)?;
+                self.measure(&plan)?;
+            }
+            "focus" => {
+                self.focus(&plan)?.ok_or_else(missing)?;
+            }
+            _ => return Err(missing()),
+        }
+        Ok(())
     }
 
     // ---- chain ----------------------------------------------------------------------------------

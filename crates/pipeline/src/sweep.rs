@@ -65,7 +65,16 @@ pub fn sweep(exp: &Experiment, runner: &mut Runner, progress: bool) -> Result<Sw
     }
     bar.finish_and_clear();
     runner.forget();
-    let mut counts = runner.counts.clone();
+    Ok(SweepResult {
+        rows,
+        counts: counts_since(&runner.counts, &before),
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// What a runner counted since `before` (a snapshot of its counts).
+pub fn counts_since(now: &Counts, before: &Counts) -> Counts {
+    let mut counts = now.clone();
     counts.computed -= before.computed;
     counts.cached -= before.cached;
     for (k, v) in counts.per_stage.iter_mut() {
@@ -73,9 +82,5 @@ pub fn sweep(exp: &Experiment, runner: &mut Runner, progress: bool) -> Result<Sw
         v.computed -= b.computed;
         v.cached -= b.cached;
     }
-    Ok(SweepResult {
-        rows,
-        counts,
-        seconds: t0.elapsed().as_secs_f64(),
-    })
+    counts
 }
