@@ -14,11 +14,12 @@ use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 /// 4 generated scenes x (1 load + 4 encodes + 12 builds + 4 compactions + 16 measures) = 148
-/// stages; a couple of seconds per scene in a release build.
+/// stages; about 19 s cold on one thread of the release build (the hairball's rays are most of it),
+/// so a task can be cancelled while it runs.
 const EXPERIMENT: &str = r#"
 name = "cluster-test"
-scenes = ["gen:sphere:n=6000", "gen:city:blocks=10", "gen:terrain:n=6000", "gen:hairball:n=400"]
-repeat = 1
+scenes = ["gen:sphere:n=120000", "gen:city:blocks=40", "gen:terrain:n=120000", "gen:hairball:n=3000"]
+repeat = 2
 [[chain]]
 build = "binned-sah"
 bins = [4, 8, 16, 32]
@@ -29,7 +30,7 @@ build = ["sweep-sah", "spatial-median"]
 build = ["lbvh", "aac", "ploc"]
 encode = ["morton", "emc64-var"]
 [rays]
-sets = ["random:3000"]
+sets = ["random:20000"]
 "#;
 
 fn bin() -> PathBuf {
