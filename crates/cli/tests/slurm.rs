@@ -13,6 +13,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
+mod common;
+use common::untimed_rows;
+
 /// 4 generated scenes x (1 load + 4 encodes + 12 builds + 4 compactions + 16 measures) = 148
 /// stages; about 19 s cold on one thread of the release build (the hairball's rays are most of it),
 /// so a task can be cancelled while it runs.
@@ -104,64 +107,6 @@ fn job_state(id: &str) -> (String, String) {
             .to_string()
     };
     (field("JobState"), field("ExitCode"))
-}
-
-/// Quoted-field-aware CSV reader.
-fn parse_csv(text: &str) -> Vec<Vec<String>> {
-    let mut rows = Vec::new();
-    let (mut row, mut field, mut quoted) = (Vec::new(), String::new(), false);
-    let mut chars = text.chars().peekable();
-    while let Some(c) = chars.next() {
-        match (c, quoted) {
-            ('"', true) if chars.peek() == Some(&'"') => {
-                field.push('"');
-                chars.next();
-            }
-            ('"', _) => quoted = !quoted,
-            (',', false) => row.push(std::mem::take(&mut field)),
-            ('\n', false) => {
-                row.push(std::mem::take(&mut field));
-                rows.push(std::mem::take(&mut row));
-            }
-            ('\r', false) => {}
-            (c, _) => field.push(c),
-        }
-    }
-    if !field.is_empty() || !row.is_empty() {
-        row.push(field);
-        rows.push(row);
-    }
-    rows
-}
-
-/// results.csv without the columns that depend on where and when a stage ran: timings, the
-/// heat map path (inside the cache), the thread count and machine of the run.
-fn untimed_rows(report: &Path) -> Vec<Vec<(String, String)>> {
-    let text = std::fs::read_to_string(report.join("results.csv"))
-        .unwrap_or_else(|e| panic!("{}: {e}", report.display()));
-    let rows = parse_csv(&text);
-    let header = rows[0].clone();
-    let mut out: Vec<Vec<(String, String)>> = rows[1..]
-        .iter()
-        .map(|r| {
-            header
-                .iter()
-                .zip(r)
-                .filter(|(h, _)| {
-                    !(h.contains("seconds")
-                        || h.contains("mrays")
-                        || h.contains("machine")
-                        || *h == "slowdown"
-                        || *h == "optimize_trace"
-                        || *h == "heatmap"
-                        || *h == "threads")
-                })
-                .map(|(h, v)| (h.clone(), v.clone()))
-                .collect()
-        })
-        .collect();
-    out.sort();
-    out
 }
 
 fn slurm_ready() {
