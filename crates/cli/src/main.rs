@@ -406,7 +406,10 @@ fn run(cli: Cli) -> Result<()> {
                 }
                 CacheOp::Gc => {
                     let r = store.gc();
-                    println!("{}", serde_json::json!({"removed_files": r.removed_files, "removed_bytes": r.removed_bytes}));
+                    println!(
+                        "{}",
+                        serde_json::json!({"removed_files": r.removed_files, "removed_bytes": r.removed_bytes, "removed_locks": r.removed_locks})
+                    );
                     Ok(())
                 }
             }

@@ -8,6 +8,7 @@ pub mod error;
 pub mod estimate;
 pub mod experiment;
 pub mod key;
+pub mod lockfile;
 pub mod memtrack;
 pub mod plan;
 pub mod registry;

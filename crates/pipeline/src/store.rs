@@ -11,20 +11,24 @@
 //! e.g. a valid artifact of another key copied over this one, is rejected); the codec then checks
 //! its own header checksum. A rejected file is moved to `ROOT/quarantine/` and recomputed.
 //!
-//! Concurrency: `ROOT/locks/<stage>/<key>.lock` are per-entry compute locks (`File::lock`, an
-//! advisory `flock`, released by the kernel when the process dies). A process computes an entry only
-//! while holding its lock and after re-checking, under the lock, that no other process completed
-//! it meanwhile; see `run.rs` (`cached`, `commit`) for the protocol and why it cannot deadlock.
+//! Concurrency: `ROOT/locks/<stage>/<key>.lock` are per-entry compute locks: exclusive lock files
+//! with owner, host and heartbeat (`lockfile.rs`), which hold on NFS where `flock` may not; a lock
+//! of a dead process is taken over (at once on its own host, after `BVHLAB_LOCK_STALE_SECS` of
+//! silence from another host). A process computes an entry only while holding its lock and after
+//! re-checking, under the lock, that no other process completed it meanwhile; see `run.rs`
+//! (`cached`, `commit`) for the protocol and why it cannot deadlock. Temporary files carry their
+//! writer's host tag, so cleanup judges a writer's liveness by `/proc` only on its own host.
 use crate::codec;
 use crate::error::{Error, Result};
 use crate::key::Key;
+use crate::lockfile::{self, LockTiming};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::collections::HashMap;
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// What produced an artifact, stored beside it as JSON.
@@ -99,12 +103,17 @@ pub struct Store {
     root: PathBuf,
     /// Removed on drop (`--no-cache`).
     temporary: bool,
-    /// Compute locks this process holds, (stage, key) -> the locked file. Shared with
-    /// `LockRelease` guards; dropping a `File` releases its lock.
+    /// Compute locks this store holds, (stage, key) -> the lock's guard. Shared with `LockRelease`
+    /// guards and the heartbeat thread; dropping a guard releases its lock.
     locks: HeldLocks,
+    /// Owner token of this store's locks (unique per store, so two stores of one process exclude
+    /// each other like two processes).
+    token: String,
+    lock_timing: LockTiming,
+    heartbeat_started: Arc<AtomicBool>,
 }
 
-type HeldLocks = Arc<Mutex<HashMap<(String, Key), fs::File>>>;
+type HeldLocks = Arc<Mutex<HashMap<(String, Key), lockfile::Guard>>>;
 
 /// Releases every compute lock of its store when dropped (end of a chain, also on error).
 pub struct LockRelease(HeldLocks);
@@ -112,26 +121,30 @@ pub struct LockRelease(HeldLocks);
 impl Drop for LockRelease {
     fn drop(&mut self) {
         if let Ok(mut m) = self.0.lock() {
-            for (_, f) in m.drain() {
-                let _ = f.unlock();
-            }
+            m.clear();
         }
     }
 }
 
-/// Whether the process that wrote a temporary file `.tmp-<pid>-...` may still be writing it.
-/// Linux: `/proc/<pid>` exists. Elsewhere (no /proc): assume alive unless the file is a day old.
+/// Whether the process that wrote a temporary file `.tmp-<pid>-<n>-h<host tag>-<name>` (or the
+/// older `.tmp-<pid>-<n>-<name>`, taken as this host's) may still be writing it. Its own host:
+/// `/proc/<pid>` exists. Another host (a shared cache), or no /proc: assume alive unless the file
+/// is a day old.
 fn writer_alive(name: &str, path: &Path) -> bool {
-    let pid = name
-        .strip_prefix(".tmp-")
-        .and_then(|r| r.split('-').next())
-        .and_then(|p| p.parse::<u32>().ok());
+    let mut parts = name.strip_prefix(".tmp-").unwrap_or("").splitn(4, '-');
+    let pid = parts.next().and_then(|p| p.parse::<u32>().ok());
     let Some(pid) = pid else { return false };
-    if pid == std::process::id() {
+    let _n = parts.next();
+    let host = parts
+        .next()
+        .and_then(|h| h.strip_prefix('h'))
+        .filter(|h| h.len() == 8 && h.chars().all(|c| c.is_ascii_hexdigit()));
+    let local = host.is_none_or(|h| h == lockfile::host_tag());
+    if local && pid == std::process::id() {
         return true;
     }
-    if Path::new("/proc/self").exists() {
-        return Path::new("/proc").join(pid.to_string()).exists();
+    if local && Path::new("/proc/self").exists() {
+        return lockfile::pid_alive(pid);
     }
     fs::metadata(path)
         .and_then(|m| m.modified())
@@ -182,6 +195,9 @@ impl VerifyReport {
 pub struct GcReport {
     pub removed_files: u64,
     pub removed_bytes: u64,
+    /// Compute locks of dead processes (this host: pid gone) and leftovers of interrupted
+    /// takeovers older than a day.
+    pub removed_locks: u64,
 }
 
 impl Store {
@@ -192,7 +208,38 @@ impl Store {
             root,
             temporary: false,
             locks: Arc::default(),
+            token: lockfile::new_token(),
+            lock_timing: LockTiming::from_env(),
+            heartbeat_started: Arc::default(),
         })
+    }
+
+    /// Heartbeat interval and stale time of the compute locks (default 5 s / 60 s, or
+    /// `BVHLAB_LOCK_HEARTBEAT_SECS` / `BVHLAB_LOCK_STALE_SECS`).
+    pub fn set_lock_timing(&mut self, timing: LockTiming) {
+        self.lock_timing = timing;
+    }
+
+    /// Starts the thread that beats every held lock (once per store; it ends with the store).
+    fn start_heartbeat(&self) {
+        if self.heartbeat_started.swap(true, Ordering::SeqCst) {
+            return;
+        }
+        let held = Arc::downgrade(&self.locks);
+        let every = self.lock_timing.heartbeat;
+        let spawned = std::thread::Builder::new()
+            .name("bvhlab-lock-heartbeat".into())
+            .spawn(move || loop {
+                std::thread::sleep(every);
+                let Some(m) = held.upgrade() else { return };
+                let m = m.lock().unwrap_or_else(|e| e.into_inner());
+                for g in m.values() {
+                    g.heartbeat();
+                }
+            });
+        if spawned.is_err() {
+            eprintln!("warning: cannot start the lock heartbeat thread; long stages may be taken over by other hosts");
+        }
     }
 
     /// A throw-away store in the system temp dir, deleted when dropped.
@@ -323,18 +370,6 @@ impl Store {
             .join(format!("{}.lock", key.hex()))
     }
 
-    fn open_lock(&self, stage: &str, key: &Key) -> std::io::Result<fs::File> {
-        let p = self.lock_path(stage, key);
-        if let Some(d) = p.parent() {
-            fs::create_dir_all(d)?;
-        }
-        fs::OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .write(true)
-            .open(&p)
-    }
-
     /// Takes the exclusive compute lock of an entry, blocking while another process holds it.
     /// Re-entrant within this process (a held lock is kept). On an I/O error it warns and goes on
     /// unlocked: atomic writes keep the cache correct, only the once-per-entry guarantee is lost.
@@ -343,13 +378,12 @@ impl Store {
             return;
         }
         // Block without holding the table's mutex.
-        match self
-            .open_lock(stage, key)
-            .and_then(|f| f.lock().map(|()| f))
-        {
-            Ok(f) => {
+        match lockfile::acquire(&self.lock_path(stage, key), &self.token, &self.lock_timing) {
+            Ok(g) => {
                 let mut held = self.locks.lock().unwrap_or_else(|e| e.into_inner());
-                held.insert((stage.to_string(), *key), f);
+                held.insert((stage.to_string(), *key), g);
+                drop(held);
+                self.start_heartbeat();
             }
             Err(e) => eprintln!(
                 "warning: cannot lock {}: {e}; computing without a lock",
@@ -361,9 +395,8 @@ impl Store {
     /// Releases the entry's compute lock if this process holds it.
     pub fn unlock(&self, stage: &str, key: &Key) {
         let mut held = self.locks.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(f) = held.remove(&(stage.to_string(), *key)) {
-            let _ = f.unlock();
-        }
+        // Dropping the guard removes the lock file.
+        held.remove(&(stage.to_string(), *key));
     }
 
     pub fn holds_lock(&self, stage: &str, key: &Key) -> bool {
@@ -381,17 +414,14 @@ impl Store {
         LockRelease(self.locks.clone())
     }
 
-    /// The entry's lock if no process holds it (repair and gc skip entries being computed).
-    fn try_lock_entry(&self, stage: &str, key: &Key) -> Option<Option<fs::File>> {
+    /// The entry's lock if no live process holds it (repair and gc skip entries being computed).
+    fn try_lock_entry(&self, stage: &str, key: &Key) -> Option<Option<lockfile::Guard>> {
         if self.holds_lock(stage, key) {
             return None;
         }
-        match self.open_lock(stage, key) {
-            Ok(f) => match f.try_lock() {
-                Ok(()) => Some(Some(f)),
-                Err(fs::TryLockError::WouldBlock) => None,
-                Err(fs::TryLockError::Error(_)) => Some(None),
-            },
+        match lockfile::try_acquire(&self.lock_path(stage, key), &self.token) {
+            Ok(Some(g)) => Some(Some(g)),
+            Ok(None) => None,
             // No lock directory (read-only cache...): nothing can be computing through it.
             Err(_) => Some(None),
         }
@@ -443,7 +473,12 @@ impl Store {
             .map(|s| s.to_string_lossy().to_string())
             .unwrap_or_default();
         // Keep the real extension last: some writers (PNG) pick the format from it.
-        let tmp = dir.join(format!(".tmp-{}-{n}-{name}", std::process::id()));
+        // The host tag lets cleanup on a shared cache tell whose pid it is (see `writer_alive`).
+        let tmp = dir.join(format!(
+            ".tmp-{}-{n}-h{}-{name}",
+            std::process::id(),
+            lockfile::host_tag()
+        ));
         let result = (|| {
             write(&tmp)
                 .map_err(|e| Error::internal(format!("cannot write {}: {e}", tmp.display())))?;
@@ -698,6 +733,31 @@ impl Store {
             remove(&f);
         }
         let _ = fs::remove_dir(self.root.join("quarantine"));
+        let mut removed_locks = 0;
+        for dir in Self::files(&self.root.join("locks")) {
+            for f in Self::files(&dir) {
+                let name = f
+                    .file_name()
+                    .map(|n| n.to_string_lossy().to_string())
+                    .unwrap_or_default();
+                if name.ends_with(".lock") {
+                    // Taken (and so removed) only if no live process holds it.
+                    if let Ok(Some(g)) = lockfile::try_acquire(&f, &self.token) {
+                        drop(g);
+                        removed_locks += 1;
+                    }
+                } else if name.contains(".lock.stale-") {
+                    let old = fs::metadata(&f)
+                        .and_then(|m| m.modified())
+                        .ok()
+                        .and_then(|t| t.elapsed().ok())
+                        .is_some_and(|age| age.as_secs() > 86_400);
+                    if old && fs::remove_file(&f).is_ok() {
+                        removed_locks += 1;
+                    }
+                }
+            }
+        }
         for dir in self.stage_dirs() {
             for f in Self::files(&dir) {
                 let name = f
@@ -726,6 +786,7 @@ impl Store {
                 }
             }
         }
+        r.removed_locks = removed_locks;
         r
     }
 }
