@@ -633,7 +633,8 @@ fn report_only_sweep(
     }
     let out_dir = out.unwrap_or_else(|| PathBuf::from("reports").join(&exp.name));
     let reference = reference_dir(experiment);
-    let report = bvhlab_report::write_report(&out_dir, &exp.name, &rows, reference.as_deref())
+    let options = bvhlab_report::ReportOptions { missing_chains: missing_chains.clone() };
+    let report = bvhlab_report::write_report_with(&out_dir, &exp.name, &rows, reference.as_deref(), &options)
         .map_err(|e| Error::internal(format!("report: {e}")))?;
     println!(
         "{}",

@@ -72,6 +72,12 @@ pub struct ResultRow {
     pub optimize_trace: Option<Vec<bvhlab_opt::PassRecord>>,
     /// Worker threads the stages ran with (rayon pool size); timings depend on it, results do not.
     pub threads: u32,
+    /// CPU model the row's timed stages (encode, build, optimize, compact, layout, measure) ran on,
+    /// from their manifests. When they ran on different models (a sharded run on a mixed cluster),
+    /// the models joined by " + " and `machine_mixed` is set: the row's times must not be added or
+    /// compared as if measured on one machine. Empty: unknown (manifests older than issue 12).
+    pub machine: String,
+    pub machine_mixed: bool,
     /// Focus-box metrics (experiment `[focus]`, for scenes whose interesting part is dwarfed by an
     /// outlier or a huge ground plane): the triangles whose centroid lies inside the focus box, and
     /// the SAH cost (thesis eq. 4, same c_t/c_i) of the smallest subtree holding all of them,

@@ -130,6 +130,8 @@ pub struct Runner {
     layouts: HashMap<Key, Arc<LayoutArtifact>>,
     layout_sums: HashMap<Key, LayoutSummary>,
     file_hashes: HashMap<PathBuf, String>,
+    /// CPU model per node, read from its manifest once per run.
+    cpu_models: HashMap<(&'static str, Key), String>,
 }
 
 fn param(k: &str, v: impl ToString) -> (String, String) {
@@ -159,6 +161,7 @@ impl Runner {
             layouts: HashMap::new(),
             layout_sums: HashMap::new(),
             file_hashes: HashMap::new(),
+            cpu_models: HashMap::new(),
         }
     }
 
@@ -1218,6 +1221,40 @@ impl Runner {
         Ok(Some(f))
     }
 
+    /// CPU model a node was computed on (its manifest's; "" if unknown).
+    fn node_cpu_model(&mut self, node: &NodeDef) -> String {
+        if let Some(m) = self.cpu_models.get(&(node.stage, node.key)) {
+            return m.clone();
+        }
+        let m = self
+            .store
+            .read_manifest(node.stage, &node.key)
+            .map(|m| m.machine.cpu_model)
+            .unwrap_or_default();
+        self.cpu_models.insert((node.stage, node.key), m.clone());
+        m
+    }
+
+    /// The row's `machine` and `machine_mixed` from the timed nodes of the chain (unknown models
+    /// are compatible with any: caches written before models were recorded are not flagged).
+    fn timing_machine(&mut self, plan: &Plan) -> (String, bool) {
+        let mut nodes: Vec<NodeDef> = Vec::new();
+        nodes.extend(plan.encode.clone());
+        nodes.push(plan.build.clone());
+        nodes.extend(plan.optimize.clone());
+        nodes.extend(plan.compact.clone());
+        nodes.extend(plan.layout.as_ref().map(|(n, _)| n.clone()));
+        nodes.extend(plan.measure.as_ref().map(|(n, _)| n.clone()));
+        let mut models: Vec<String> = Vec::new();
+        for n in &nodes {
+            let m = self.node_cpu_model(n);
+            if !m.is_empty() && !models.contains(&m) {
+                models.push(m);
+            }
+        }
+        (models.join(" + "), models.len() > 1)
+    }
+
     // ---- single nodes (plans and shards, crate::plan) --------------------------------------------
 
     /// The nodes of `spec`'s stage graph in chain order (load, encode, build, optimize, compact,
@@ -1233,8 +1270,7 @@ impl Runner {
         v.extend(p.layout.map(|(n, _)| n));
         v.extend(p.measure.map(|(n, _)| n));
         v.extend(p.focus);
-        Ok(v
-            .into_iter()
+        Ok(v.into_iter()
             .map(|n| NodeInfo {
                 stage: n.stage,
                 key: n.key,
@@ -1312,6 +1348,7 @@ impl Runner {
         let focus = self.focus(&plan)?;
         let fin = compact.as_ref().or(optimized.as_ref()).unwrap_or(&build);
         let m = &fin.metrics;
+        let (machine, machine_mixed) = self.timing_machine(&plan);
         let mut keys = BTreeMap::new();
         keys.insert("load".to_string(), plan.load.key.hex());
         if let Some(e) = &plan.encode {
@@ -1411,6 +1448,8 @@ impl Runner {
             optimize_stop: opt_info.as_ref().map(|i| i.stop.clone()),
             optimize_trace: opt_info.map(|i| i.trace),
             threads: rayon::current_num_threads() as u32,
+            machine,
+            machine_mixed,
             focus_triangles: focus.as_ref().map(|f| f.triangles),
             focus_sah_cost: focus.as_ref().and_then(|f| f.sah_cost),
             compact_seconds: compact.as_ref().map(|c| c.median_seconds).unwrap_or(0.0),

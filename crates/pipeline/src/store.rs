@@ -59,6 +59,28 @@ pub struct Machine {
     pub cpus: usize,
     /// Rayon threads the stage ran with.
     pub threads: usize,
+    /// CPU model ("model name" of /proc/cpuinfo; else the architecture). Timings of different
+    /// models are never combined without saying so (issue 12). Empty in manifests written before
+    /// it was recorded: unknown.
+    #[serde(default)]
+    pub cpu_model: String,
+}
+
+/// This machine's CPU model, read once.
+pub fn cpu_model() -> &'static str {
+    static M: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    M.get_or_init(|| {
+        fs::read_to_string("/proc/cpuinfo")
+            .ok()
+            .and_then(|t| {
+                t.lines()
+                    .find(|l| l.starts_with("model name"))
+                    .and_then(|l| l.split_once(':'))
+                    .map(|(_, v)| v.split_whitespace().collect::<Vec<_>>().join(" "))
+            })
+            .filter(|m| !m.is_empty())
+            .unwrap_or_else(|| std::env::consts::ARCH.to_string())
+    })
 }
 
 impl Machine {
@@ -77,6 +99,7 @@ impl Machine {
                 .map(|n| n.get())
                 .unwrap_or(1),
             threads: rayon::current_num_threads(),
+            cpu_model: cpu_model().to_string(),
         }
     }
 }

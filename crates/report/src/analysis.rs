@@ -27,6 +27,13 @@ pub fn method_key(r: &ResultRow) -> String {
 /// `total_build_seconds`) (+ a separate compaction stage), so Morton builders are charged for their
 /// codes and sort and optimizer chains for their passes (Bittner 2013's build_s). Falls back to build + encode seconds for rows
 /// written before `total_build_seconds` existed (0 there).
+/// Whether the timings of two rows may be compared (a ratio of their times): neither mixes CPU
+/// models and both were measured on the same one (an unrecorded model, "", matches any: caches
+/// from before issue 12).
+pub fn same_timing_machine(a: &ResultRow, b: &ResultRow) -> bool {
+    !a.machine_mixed && !b.machine_mixed && (a.machine == b.machine || a.machine.is_empty() || b.machine.is_empty())
+}
+
 pub fn total_build_seconds(r: &ResultRow) -> f64 {
     let total = if r.total_build_seconds > 0.0 {
         r.total_build_seconds

@@ -56,6 +56,8 @@ pub struct Page<'a> {
     pub reference: Option<Result<ReferenceReport, String>>,
     pub reference_plots: Vec<Plot>,
     pub problems: Vec<String>,
+    /// Raw HTML shown near the top: timings from several machines, an incomplete report.
+    pub notices: String,
 }
 
 const CSS: &str = "body{font-family:sans-serif;margin:1.5em;color:#222;max-width:1600px}\
@@ -102,6 +104,7 @@ pub fn render(p: &Page) -> String {
         h.push_str("<p class=\"warn\">No results: the experiment produced no rows.</p>\n");
     }
     invalid_box(&mut h, &invalid);
+    h.push_str(&p.notices);
     if !p.problems.is_empty() {
         h.push_str("<h2>Problems while making this report</h2><ul>");
         for e in &p.problems {

@@ -37,6 +37,117 @@ pub fn write_report(
     rows: &[ResultRow],
     reference_dir: Option<&Path>,
 ) -> Result<PathBuf, String> {
+    write_report_with(out_dir, experiment, rows, reference_dir, &ReportOptions::default())
+}
+
+/// What a report says beyond its rows.
+#[derive(Clone, Debug, Default)]
+pub struct ReportOptions {
+    /// Chains of the experiment with a stage missing from the cache (`sweep --report-only`): the
+    /// report is incomplete and says so at the top.
+    pub missing_chains: Vec<String>,
+}
+
+/// Rows whose timings may be compared with each other: one CPU model (issue 12).
+pub struct TimingGroup<'a> {
+    /// CPU model ("" = not recorded).
+    pub machine: String,
+    pub rows: Vec<&'a ResultRow>,
+}
+
+/// Rows grouped by the CPU model their timings were measured on, in first-appearance order;
+/// rows whose stages ran on different models (`machine_mixed`) are in no group.
+pub fn timing_groups(rows: &[ResultRow]) -> Vec<TimingGroup<'_>> {
+    let mut groups: Vec<TimingGroup> = Vec::new();
+    for r in rows.iter().filter(|r| !r.machine_mixed) {
+        match groups.iter_mut().find(|g| g.machine == r.machine) {
+            Some(g) => g.rows.push(r),
+            None => groups.push(TimingGroup { machine: r.machine.clone(), rows: vec![r] }),
+        }
+    }
+    groups
+}
+
+fn machine_name(m: &str) -> &str {
+    if m.is_empty() {
+        "unknown CPU"
+    } else {
+        m
+    }
+}
+
+/// The notice about machines: one line when every timing comes from one CPU model, a warning box
+/// with the per-machine row counts and every mixed row otherwise.
+fn machines_notice(rows: &[ResultRow], groups: &[TimingGroup]) -> String {
+    use std::fmt::Write;
+    let mixed: Vec<&ResultRow> = rows.iter().filter(|r| r.machine_mixed).collect();
+    let mut h = String::new();
+    if groups.len() <= 1 && mixed.is_empty() {
+        if let Some(g) = groups.first() {
+            let _ = writeln!(h, "<p class=\"meta\">Timings measured on: {}.</p>", html::escape(machine_name(&g.machine)));
+        }
+        return h;
+    }
+    h.push_str("<div class=\"invalid-box\" id=\"machines\"><h2>Timings from more than one CPU model</h2>");
+    h.push_str(
+        "<p>These rows were computed on different machines (e.g. a sharded Slurm run). Timing plots, \
+         Pareto fronts and time ratios are drawn per CPU model (section titles say which); SAH costs, \
+         counts and bytes do not depend on the machine and merge all rows. Pin one model with \
+         <code>bvhlab slurm --constraint</code> (or <code>--partition</code>) to compare all timings.</p><ul>",
+    );
+    for g in groups {
+        let _ = write!(h, "<li>{}: {} rows</li>", html::escape(machine_name(&g.machine)), g.rows.len());
+    }
+    h.push_str("</ul>");
+    if !mixed.is_empty() {
+        let _ = write!(
+            h,
+            "<p class=\"warn\"><b>{} rows have stages timed on different CPU models</b> (e.g. built on one, \
+             traced on another): their times are left out of every timing plot and ratio.</p>\
+             <table><tr><th>scene</th><th>method</th><th>machines</th></tr>",
+            mixed.len()
+        );
+        for r in &mixed {
+            let _ = write!(
+                h,
+                "<tr class=\"invalid\"><td>{}</td><td>{}</td><td>{}</td></tr>",
+                html::escape(&r.scene_name),
+                html::escape(&r.method),
+                html::escape(&r.machine)
+            );
+        }
+        h.push_str("</table>");
+    }
+    h.push_str("</div>\n");
+    h
+}
+
+fn incomplete_notice(missing: &[String]) -> String {
+    use std::fmt::Write;
+    if missing.is_empty() {
+        return String::new();
+    }
+    let mut h = format!(
+        "<div class=\"invalid-box\" id=\"incomplete\"><h2>Incomplete: {} chains missing from the cache</h2>\
+         <p>Compute them (resubmit the same <code>bvhlab slurm</code> command, or run <code>bvhlab sweep</code>) \
+         and build the report again. Missing:</p><ul>",
+        missing.len()
+    );
+    for m in missing {
+        let _ = write!(h, "<li>{}</li>", html::escape(m));
+    }
+    h.push_str("</ul></div>\n");
+    h
+}
+
+/// `write_report` with options (an incomplete report's missing chains).
+pub fn write_report_with(
+    out_dir: &Path,
+    experiment: &str,
+    rows: &[ResultRow],
+    reference_dir: Option<&Path>,
+    options: &ReportOptions,
+) -> Result<PathBuf, String> {
     let plots_dir = out_dir.join(PLOTS_DIR);
     std::fs::create_dir_all(&plots_dir).map_err(|e| format!("{}: {e}", plots_dir.display()))?;
 
@@ -64,6 +175,11 @@ pub fn write_report(
         }
     };
 
+    // Timings compare only within one CPU model (issue 12): with several, every timing plot is
+    // drawn per model and mixed rows are left out of them.
+    let groups = timing_groups(rows);
+    let multi = groups.len() > 1;
+    let suffix = |g: &TimingGroup| if multi { format!(" [{}]", machine_name(&g.machine)) } else { String::new() };
     let mut pareto = Vec::new();
     let mut sah = Vec::new();
     let mut rays = Vec::new();
@@ -77,6 +193,12 @@ pub fn write_report(
         // whole-scene cost is still in the bar chart below.
         let focus = chains.iter().any(|r| r.focus_sah_cost.is_some_and(f64::is_finite));
         let cost_label = if focus { "focus SAH cost" } else { "SAH cost" };
+        for g in &groups {
+        let timed: Vec<&ResultRow> = g.rows.iter().copied().filter(|r| r.scene == *scene).collect();
+        let chains = first_per(&timed, |r| r.method.clone());
+        if chains.is_empty() {
+            continue;
+        }
         let fig = ParetoFigure {
             scene: name.to_string(),
             cost_label: cost_label.to_string(),
@@ -99,10 +221,11 @@ pub fn write_report(
         };
         pareto.extend(plot(
             &fig,
-            &format!("pareto_{name}"),
-            &format!("{name}: build time vs {cost_label}"),
+            &format!("pareto_{name}{}", if multi { format!("_{}", machine_name(&g.machine)) } else { String::new() }),
+            &format!("{name}: build time vs {cost_label}{}", suffix(g)),
             &mut problems,
         ));
+        }
 
         let bars = |v: &dyn Fn(&ResultRow) -> Option<f64>, rs: &[&ResultRow]| -> Vec<Bar> {
             rs.iter()
@@ -160,14 +283,40 @@ pub fn write_report(
     let heatmaps = copy_heatmaps(out_dir, rows, &mut problems);
 
     let reference = reference_dir.map(|d| reference::compare(d, rows));
-    let optimization_section = optimization::section(
-        rows,
-        reference.as_ref().and_then(|r| r.as_ref().ok()),
-        &mut |fig, stem, title, problems| plot(fig, stem, title, problems),
-        &mut problems,
-    );
-    let layouts_section =
-        layouts::section(rows, &mut |fig, stem, title, problems| plot(fig, stem, title, problems), &mut problems);
+    // Sections whose plots and tables use timings: once per CPU model (mixed rows left out).
+    let mut optimization_section = Vec::new();
+    let mut layouts_section = Vec::new();
+    let single_group_is_all = groups.len() == 1 && groups[0].rows.len() == rows.len();
+    for (gi, g) in groups.iter().enumerate() {
+        let owned: Vec<ResultRow>;
+        let group_rows: &[ResultRow] = if single_group_is_all {
+            rows
+        } else {
+            owned = g.rows.iter().map(|r| (*r).clone()).collect();
+            &owned
+        };
+        let tag = suffix(g);
+        let mut retitle = |mut s: Section| {
+            if multi {
+                s.title.push_str(&tag);
+                s.id = Box::leak(format!("{}-m{gi}", s.id).into_boxed_str());
+            }
+            s
+        };
+        let opt = optimization::section(
+            group_rows,
+            reference.as_ref().and_then(|r| r.as_ref().ok()),
+            &mut |fig, stem, title, problems| plot(fig, stem, &format!("{title}{tag}"), problems),
+            &mut problems,
+        );
+        optimization_section.extend(opt.into_iter().map(&mut retitle));
+        let lay = layouts::section(
+            group_rows,
+            &mut |fig, stem, title, problems| plot(fig, stem, &format!("{title}{tag}"), problems),
+            &mut problems,
+        );
+        layouts_section.extend(lay.into_iter().map(&mut retitle));
+    }
     let mut reference_plots = Vec::new();
     if let Some(Ok(rep)) = &reference {
         for metric in unique(rep.comparisons.iter().map(|c| c.metric.as_str())) {
@@ -243,6 +392,7 @@ pub fn write_report(
         reference,
         reference_plots,
         problems,
+        notices: format!("{}{}", incomplete_notice(&options.missing_chains), machines_notice(rows, &groups)),
     };
     let index = out_dir.join("index.html");
     fsutil::write_atomic(&index, html::render(&page).as_bytes())?;

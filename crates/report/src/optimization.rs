@@ -285,7 +285,9 @@ fn bittner_table(rep: &ReferenceReport) -> String {
     };
     for b in &rep.bittner {
         let base = rep.bittner.iter().find(|x| {
-            x.scene_name == b.scene_name && x.paper_method == reference::BITTNER_METHODS[0].abbrev
+            x.scene_name == b.scene_name
+                && x.paper_method == reference::BITTNER_METHODS[0].abbrev
+                && (x.machine == b.machine || x.machine.is_empty() || b.machine.is_empty())
         });
         let rel = |v: f64, base: Option<f64>| match base {
             Some(bv) if bv > 0.0 && v.is_finite() => format!("{:.2}x", v / bv),

@@ -143,6 +143,8 @@ pub struct BittnerComparison {
     /// cost, ocost, update_s, build_s.
     pub ours: [f64; 4],
     pub paper: [f64; 4],
+    /// CPU model of our row's timings: time ratios only between rows of one model (issue 12).
+    pub machine: String,
 }
 
 /// Thesis table 25: EMC-64-var relative to the original Morton codes, same builder and parameters,
@@ -538,7 +540,12 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
         let paper_row = table.get(&ts.short);
         let ratio = |a: f64, b: f64| if b > 0.0 && a.is_finite() && b.is_finite() { Some(100.0 * a / b) } else { None };
         let cost = ratio(e.sah_cost, m.sah_cost);
-        let build = ratio(crate::analysis::total_build_seconds(e), crate::analysis::total_build_seconds(m));
+        // A time ratio only between rows timed on one CPU model (issue 12).
+        let build = if crate::analysis::same_timing_machine(e, m) {
+            ratio(crate::analysis::total_build_seconds(e), crate::analysis::total_build_seconds(m))
+        } else {
+            None
+        };
         for (label, col, ours) in [(EMC_COST_LABEL, "cost", cost), (EMC_BUILD_LABEL, "build", build)] {
             let paper = paper_row.and_then(|p| p.get(&format!("{col}_{abbrev}"))).copied();
             if let (Some(ours), Some(paper)) = (ours, paper) {
@@ -664,8 +671,9 @@ fn bittner_compare(dir: &Path, rows: &[ResultRow], rep: &mut ReferenceReport) ->
             let ours = [
                 bittner_cost(r).unwrap_or(f64::NAN),
                 r.sah_cost,
-                r.optimize_seconds.unwrap_or(0.0),
-                crate::analysis::total_build_seconds(r) - r.compact_seconds,
+                // Times of a row whose stages ran on different CPU models are not comparable.
+                if r.machine_mixed { f64::NAN } else { r.optimize_seconds.unwrap_or(0.0) },
+                if r.machine_mixed { f64::NAN } else { crate::analysis::total_build_seconds(r) - r.compact_seconds },
             ];
             for (label, o, p) in [(BITTNER_COST_LABEL, ours[0], paper[0]), (BITTNER_OCOST_LABEL, ours[1], paper[1])] {
                 if o.is_finite() && p.is_finite() {
@@ -689,6 +697,7 @@ fn bittner_compare(dir: &Path, rows: &[ResultRow], rep: &mut ReferenceReport) ->
                 method: r.method.clone(),
                 ours,
                 paper: *paper,
+                machine: r.machine.clone(),
             });
         }
     }

@@ -220,3 +220,56 @@ fn pareto_front_is_exposed() {
     let pts = [(0.001, 120.0), (0.004, 110.0), (0.09, 100.0), (0.1, 105.0), (0.002, 130.0)];
     assert_eq!(pareto_front(&pts), vec![0, 1, 2]);
 }
+
+/// Issue 12: rows timed on two CPU models get one Pareto plot per model, mixed rows are left out
+/// of timing plots and listed; one model gives one plot per scene and a one-line note.
+#[test]
+fn timings_from_two_machines_are_plotted_per_machine() {
+    let mk = |params: &str, cost: f64, secs: f64, machine: &str, mixed: bool| {
+        let mut r = row("sphere", "binned-sah", params, cost, secs);
+        r.machine = machine.into();
+        r.machine_mixed = mixed;
+        r
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let single: Vec<ResultRow> = vec![mk("bins=4", 110.0, 0.01, "CPU A", false), mk("bins=16", 100.0, 0.02, "CPU A", false)];
+    write_report(&dir.path().join("one"), "t", &single, None).unwrap();
+    let html = std::fs::read_to_string(dir.path().join("one/index.html")).unwrap();
+    assert!(html.contains("Timings measured on: CPU A."), "one model: one line");
+    assert!(!html.contains("more than one CPU model"));
+    let paretos = |d: &str| -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir.path().join(d).join("plots"))
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().to_string())
+            .filter(|n| n.starts_with("pareto_") && n.ends_with(".png"))
+            .collect();
+        v.sort();
+        v
+    };
+    assert_eq!(paretos("one").len(), 1);
+
+    let mut rows = single.clone();
+    rows.push(mk("bins=8", 105.0, 0.5, "CPU B", false));
+    rows.push(mk("bins=32", 99.0, 0.03, "CPU B", false));
+    rows.push(mk("bins=64", 98.0, 0.04, "CPU A + CPU B", true));
+    write_report(&dir.path().join("two"), "t", &rows, None).unwrap();
+    let html = std::fs::read_to_string(dir.path().join("two/index.html")).unwrap();
+    assert!(html.contains("Timings from more than one CPU model"), "warning box");
+    assert!(html.contains("CPU A: 2 rows") && html.contains("CPU B: 2 rows"), "per-model counts");
+    assert!(html.contains("1 rows have stages timed on different CPU models"), "mixed rows counted");
+    assert!(html.contains("binned-sah bins=64"), "the mixed row is listed");
+    let p = paretos("two");
+    assert_eq!(p.len(), 2, "one Pareto plot per CPU model: {p:?}");
+    assert!(p.iter().any(|n| n.contains("CPU_A") || n.contains("CPU A")), "{p:?}");
+    // The SAH bar chart still merges every row (machine independent): one per scene.
+    let sah = std::fs::read_dir(dir.path().join("two/plots"))
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with("sah_") && e.file_name().to_string_lossy().ends_with(".png"))
+        .count();
+    assert_eq!(sah, 1);
+    // Groups: mixed rows belong to none.
+    let g = bvhlab_report::timing_groups(&rows);
+    assert_eq!(g.iter().map(|g| (g.machine.as_str(), g.rows.len())).collect::<Vec<_>>(), vec![("CPU A", 2), ("CPU B", 2)]);
+}
