@@ -303,7 +303,14 @@ fn run(cli: Cli) -> Result<()> {
                 sbatch_args: sbatch_arg,
                 submit,
             };
-            let derived = slurm::Derived { name: exp.name.clone(), peak_bytes: peak, max_shard_seconds: None };
+            // The plan against the shared cache: the largest shard's estimate (advice for --time).
+            let store = Store::open(&args.cache)?;
+            let mut runner = Runner::new(store);
+            let p = bvhlab_pipeline::plan::plan(&exp, &mut runner)?;
+            let owner = bvhlab_pipeline::plan::partition(&p, tasks.max(1) as usize);
+            let per_shard = bvhlab_pipeline::plan::shard_seconds(&p, &owner, tasks.max(1) as usize);
+            let max_shard_seconds = per_shard.iter().cloned().fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))));
+            let derived = slurm::Derived { name: exp.name.clone(), peak_bytes: peak, max_shard_seconds };
             slurm::run(&args, &derived)
         }
         Cmd::Eval { scene, build, encode, optimize, compact, set, rays, layout, focus, threads, repeat, cache, no_cache, json, max_memory } => {

@@ -315,6 +315,7 @@ pub fn run(a: &SlurmArgs, d: &Derived) -> Result<()> {
         "logs": s.logs.to_string_lossy(),
         "report": s.out.to_string_lossy(),
         "mem": s.mem,
+        "max_shard_estimated_seconds": d.max_shard_seconds,
         "array_job": array_job,
         "report_job": report_job,
         "status_command": status,
