@@ -16,25 +16,13 @@ use std::time::{Duration, Instant};
 mod common;
 use common::untimed_rows;
 
-/// 4 generated scenes x (1 load + 4 encodes + 12 builds + 4 compactions + 16 measures) = 148
-/// stages; about 19 s cold on one thread of the release build (the hairball's rays are most of it),
-/// so a task can be cancelled while it runs.
-const EXPERIMENT: &str = r#"
-name = "cluster-test"
-scenes = ["gen:sphere:n=120000", "gen:city:blocks=40", "gen:terrain:n=120000", "gen:hairball:n=3000"]
-repeat = 2
-[[chain]]
-build = "binned-sah"
-bins = [4, 8, 16, 32]
-compact = ["none", "collapse"]
-[[chain]]
-build = ["sweep-sah", "spatial-median"]
-[[chain]]
-build = ["lbvh", "aac", "ploc"]
-encode = ["morton", "emc64-var"]
-[rays]
-sets = ["random:20000"]
-"#;
+/// experiments/cluster-small.toml: 4 generated scenes x (1 load + 4 encodes + 12 builds + 4
+/// compactions + 16 measures) = 148 stages; about 20 s cold on one thread of the release build (the
+/// hairball's rays are most of it), so a task can be cancelled while it runs.
+fn experiment() -> String {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../experiments/cluster-small.toml");
+    std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+}
 
 fn bin() -> PathBuf {
     std::env::var_os("BVHLAB_BIN")
@@ -185,7 +173,7 @@ fn array_of_shards_computes_each_stage_once_and_matches_a_local_sweep() {
     slurm_ready();
     let dir = tempfile::tempdir().unwrap();
     let cwd = dir.path();
-    std::fs::write(cwd.join("t.toml"), EXPERIMENT).unwrap();
+    std::fs::write(cwd.join("t.toml"), experiment()).unwrap();
     let (local_computed, reference, local_secs) = local_reference(cwd);
     assert!(
         local_computed >= 100,
@@ -252,7 +240,7 @@ fn cancelled_task_then_resubmit_completes_the_report() {
     slurm_ready();
     let dir = tempfile::tempdir().unwrap();
     let cwd = dir.path();
-    std::fs::write(cwd.join("t.toml"), EXPERIMENT).unwrap();
+    std::fs::write(cwd.join("t.toml"), experiment()).unwrap();
     let (_, reference, _) = local_reference(cwd);
 
     let s = submit(cwd, "shared", "slurm-rep");

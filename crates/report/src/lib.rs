@@ -296,6 +296,8 @@ pub fn write_report_with(
             &owned
         };
         let tag = suffix(g);
+        // Per-model plots also carry the model in their file names.
+        let stem_tag = if multi { format!("_{}", machine_name(&g.machine)) } else { String::new() };
         let mut retitle = |mut s: Section| {
             if multi {
                 s.title.push_str(&tag);
@@ -306,13 +308,13 @@ pub fn write_report_with(
         let opt = optimization::section(
             group_rows,
             reference.as_ref().and_then(|r| r.as_ref().ok()),
-            &mut |fig, stem, title, problems| plot(fig, stem, &format!("{title}{tag}"), problems),
+            &mut |fig, stem, title, problems| plot(fig, &format!("{stem}{stem_tag}"), &format!("{title}{tag}"), problems),
             &mut problems,
         );
         optimization_section.extend(opt.into_iter().map(&mut retitle));
         let lay = layouts::section(
             group_rows,
-            &mut |fig, stem, title, problems| plot(fig, stem, &format!("{title}{tag}"), problems),
+            &mut |fig, stem, title, problems| plot(fig, &format!("{stem}{stem_tag}"), &format!("{title}{tag}"), problems),
             &mut problems,
         );
         layouts_section.extend(lay.into_iter().map(&mut retitle));
