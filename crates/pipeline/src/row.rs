@@ -78,6 +78,10 @@ pub struct ResultRow {
     /// compared as if measured on one machine. Empty: unknown (manifests older than issue 12).
     pub machine: String,
     pub machine_mixed: bool,
+    /// CPU model(s) of the construction stages alone (encode, build, optimize, compact; joined by
+    /// " + " when they differ): what build-time plots and the Pareto front group by, so a row traced
+    /// on another model keeps its build time.
+    pub build_machine: String,
     /// Focus-box metrics (experiment `[focus]`, for scenes whose interesting part is dwarfed by an
     /// outlier or a huge ground plane): the triangles whose centroid lies inside the focus box, and
     /// the SAH cost (thesis eq. 4, same c_t/c_i) of the smallest subtree holding all of them,

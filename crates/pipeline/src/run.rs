@@ -1235,24 +1235,34 @@ impl Runner {
         m
     }
 
-    /// The row's `machine` and `machine_mixed` from the timed nodes of the chain (unknown models
-    /// are compatible with any: caches written before models were recorded are not flagged).
-    fn timing_machine(&mut self, plan: &Plan) -> (String, bool) {
-        let mut nodes: Vec<NodeDef> = Vec::new();
-        nodes.extend(plan.encode.clone());
-        nodes.push(plan.build.clone());
-        nodes.extend(plan.optimize.clone());
-        nodes.extend(plan.compact.clone());
-        nodes.extend(plan.layout.as_ref().map(|(n, _)| n.clone()));
-        nodes.extend(plan.measure.as_ref().map(|(n, _)| n.clone()));
+    /// The row's `machine`, `machine_mixed` and `build_machine` from the timed nodes of the chain
+    /// (unknown models are compatible with any: caches written before models were recorded are
+    /// not flagged).
+    fn timing_machine(&mut self, plan: &Plan) -> (String, bool, String) {
+        let mut build: Vec<NodeDef> = Vec::new();
+        build.extend(plan.encode.clone());
+        build.push(plan.build.clone());
+        build.extend(plan.optimize.clone());
+        build.extend(plan.compact.clone());
+        let mut trace: Vec<NodeDef> = Vec::new();
+        trace.extend(plan.layout.as_ref().map(|(n, _)| n.clone()));
+        trace.extend(plan.measure.as_ref().map(|(n, _)| n.clone()));
         let mut models: Vec<String> = Vec::new();
-        for n in &nodes {
+        let mut build_models = 0;
+        for (i, n) in build.iter().chain(&trace).enumerate() {
             let m = self.node_cpu_model(n);
             if !m.is_empty() && !models.contains(&m) {
                 models.push(m);
             }
+            if i + 1 == build.len() {
+                build_models = models.len();
+            }
         }
-        (models.join(" + "), models.len() > 1)
+        (
+            models.join(" + "),
+            models.len() > 1,
+            models[..build_models].join(" + "),
+        )
     }
 
     // ---- single nodes (plans and shards, crate::plan) --------------------------------------------
@@ -1348,7 +1358,7 @@ impl Runner {
         let focus = self.focus(&plan)?;
         let fin = compact.as_ref().or(optimized.as_ref()).unwrap_or(&build);
         let m = &fin.metrics;
-        let (machine, machine_mixed) = self.timing_machine(&plan);
+        let (machine, machine_mixed, build_machine) = self.timing_machine(&plan);
         let mut keys = BTreeMap::new();
         keys.insert("load".to_string(), plan.load.key.hex());
         if let Some(e) = &plan.encode {
@@ -1450,6 +1460,7 @@ impl Runner {
             threads: rayon::current_num_threads() as u32,
             machine,
             machine_mixed,
+            build_machine,
             focus_triangles: focus.as_ref().map(|f| f.triangles),
             focus_sah_cost: focus.as_ref().and_then(|f| f.sah_cost),
             compact_seconds: compact.as_ref().map(|c| c.median_seconds).unwrap_or(0.0),

@@ -49,6 +49,32 @@ fn machine_comes_from_the_manifests_and_mixed_models_are_flagged() {
         warm.machine,
         format!("{} + Other CPU 9000", store::cpu_model())
     );
+    assert_eq!(
+        warm.build_machine,
+        store::cpu_model(),
+        "built here: the build time stays comparable"
+    );
+
+    // The compaction ran on yet another model: the construction itself mixes models.
+    let cpath = root
+        .join("compact")
+        .join(format!("{}.json", row.keys["compact"]));
+    let mut c: serde_json::Value = serde_json::from_slice(&std::fs::read(&cpath).unwrap()).unwrap();
+    c["machine"]["cpu_model"] = "Third CPU".into();
+    std::fs::write(&cpath, serde_json::to_vec_pretty(&c).unwrap()).unwrap();
+    let both = Runner::new(Store::open(&root).unwrap())
+        .run_chain(&chain(), "t")
+        .unwrap();
+    assert_eq!(
+        both.build_machine,
+        format!("{} + Third CPU", store::cpu_model())
+    );
+    assert_eq!(
+        both.machine,
+        format!("{} + Third CPU + Other CPU 9000", store::cpu_model())
+    );
+    c["machine"]["cpu_model"] = store::cpu_model().into();
+    std::fs::write(&cpath, serde_json::to_vec_pretty(&c).unwrap()).unwrap();
 
     // A manifest from before models were recorded (no field): unknown, compatible with any.
     v["machine"].as_object_mut().unwrap().remove("cpu_model");

@@ -27,11 +27,12 @@ pub fn method_key(r: &ResultRow) -> String {
 /// `total_build_seconds`) (+ a separate compaction stage), so Morton builders are charged for their
 /// codes and sort and optimizer chains for their passes (Bittner 2013's build_s). Falls back to build + encode seconds for rows
 /// written before `total_build_seconds` existed (0 there).
-/// Whether the timings of two rows may be compared (a ratio of their times): neither mixes CPU
-/// models and both were measured on the same one (an unrecorded model, "", matches any: caches
-/// from before issue 12).
-pub fn same_timing_machine(a: &ResultRow, b: &ResultRow) -> bool {
-    !a.machine_mixed && !b.machine_mixed && (a.machine == b.machine || a.machine.is_empty() || b.machine.is_empty())
+/// Whether the construction times (encode, build, optimize, compact) of two rows may be compared
+/// (a ratio of their build times): both were timed on one CPU model (`build_machine`; an
+/// unrecorded model, "", matches any: caches from before issue 12).
+pub fn same_build_machine(a: &ResultRow, b: &ResultRow) -> bool {
+    let one = |r: &ResultRow| !r.build_machine.contains(" + ");
+    one(a) && one(b) && (a.build_machine == b.build_machine || a.build_machine.is_empty() || b.build_machine.is_empty())
 }
 
 pub fn total_build_seconds(r: &ResultRow) -> f64 {

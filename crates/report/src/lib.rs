@@ -58,11 +58,25 @@ pub struct TimingGroup<'a> {
 /// Rows grouped by the CPU model their timings were measured on, in first-appearance order;
 /// rows whose stages ran on different models (`machine_mixed`) are in no group.
 pub fn timing_groups(rows: &[ResultRow]) -> Vec<TimingGroup<'_>> {
+    group_by_machine(rows.iter().filter(|r| !r.machine_mixed), |r| &r.machine)
+}
+
+/// Rows grouped by the CPU model of their construction stages (`build_machine`): for build-time
+/// plots, which a row traced on another model may still join. Rows whose construction stages ran
+/// on different models are in no group.
+pub fn build_timing_groups(rows: &[ResultRow]) -> Vec<TimingGroup<'_>> {
+    group_by_machine(rows.iter().filter(|r| !r.build_machine.contains(" + ")), |r| &r.build_machine)
+}
+
+fn group_by_machine<'a>(
+    rows: impl Iterator<Item = &'a ResultRow>,
+    key: impl Fn(&ResultRow) -> &String,
+) -> Vec<TimingGroup<'a>> {
     let mut groups: Vec<TimingGroup> = Vec::new();
-    for r in rows.iter().filter(|r| !r.machine_mixed) {
-        match groups.iter_mut().find(|g| g.machine == r.machine) {
+    for r in rows {
+        match groups.iter_mut().find(|g| &g.machine == key(r)) {
             Some(g) => g.rows.push(r),
-            None => groups.push(TimingGroup { machine: r.machine.clone(), rows: vec![r] }),
+            None => groups.push(TimingGroup { machine: key(r).clone(), rows: vec![r] }),
         }
     }
     groups
@@ -103,7 +117,8 @@ fn machines_notice(rows: &[ResultRow], groups: &[TimingGroup]) -> String {
         let _ = write!(
             h,
             "<p class=\"warn\"><b>{} rows have stages timed on different CPU models</b> (e.g. built on one, \
-             traced on another): their times are left out of every timing plot and ratio.</p>\
+             traced on another): their trace times are left out of every timing plot and ratio; their build \
+             times still appear where the construction stages ran on one model.</p>\
              <table><tr><th>scene</th><th>method</th><th>machines</th></tr>",
             mixed.len()
         );
@@ -178,8 +193,12 @@ pub fn write_report_with(
     // Timings compare only within one CPU model (issue 12): with several, every timing plot is
     // drawn per model and mixed rows are left out of them.
     let groups = timing_groups(rows);
+    let build_groups = build_timing_groups(rows);
     let multi = groups.len() > 1;
+    let multi_build = build_groups.len() > 1;
     let suffix = |g: &TimingGroup| if multi { format!(" [{}]", machine_name(&g.machine)) } else { String::new() };
+    let build_suffix =
+        |g: &TimingGroup| if multi_build { format!(" [{}]", machine_name(&g.machine)) } else { String::new() };
     let mut pareto = Vec::new();
     let mut sah = Vec::new();
     let mut rays = Vec::new();
@@ -193,7 +212,8 @@ pub fn write_report_with(
         // whole-scene cost is still in the bar chart below.
         let focus = chains.iter().any(|r| r.focus_sah_cost.is_some_and(f64::is_finite));
         let cost_label = if focus { "focus SAH cost" } else { "SAH cost" };
-        for g in &groups {
+        // Build time only: grouped by the construction stages' model.
+        for g in &build_groups {
         let timed: Vec<&ResultRow> = g.rows.iter().copied().filter(|r| r.scene == *scene).collect();
         let chains = first_per(&timed, |r| r.method.clone());
         if chains.is_empty() {
@@ -221,8 +241,8 @@ pub fn write_report_with(
         };
         pareto.extend(plot(
             &fig,
-            &format!("pareto_{name}{}", if multi { format!("_{}", machine_name(&g.machine)) } else { String::new() }),
-            &format!("{name}: build time vs {cost_label}{}", suffix(g)),
+            &format!("pareto_{name}{}", if multi_build { format!("_{}", machine_name(&g.machine)) } else { String::new() }),
+            &format!("{name}: build time vs {cost_label}{}", build_suffix(g)),
             &mut problems,
         ));
         }
@@ -283,41 +303,44 @@ pub fn write_report_with(
     let heatmaps = copy_heatmaps(out_dir, rows, &mut problems);
 
     let reference = reference_dir.map(|d| reference::compare(d, rows));
-    // Sections whose plots and tables use timings: once per CPU model (mixed rows left out).
+    // Sections whose plots and tables use timings: once per CPU model (mixed rows left out). The
+    // optimization section plots construction times only (build_machine); the layout section also
+    // trace times (machine).
+    let group_rows = |g: &TimingGroup| -> Vec<ResultRow> { g.rows.iter().map(|r| (*r).clone()).collect() };
     let mut optimization_section = Vec::new();
-    let mut layouts_section = Vec::new();
-    let single_group_is_all = groups.len() == 1 && groups[0].rows.len() == rows.len();
-    for (gi, g) in groups.iter().enumerate() {
-        let owned: Vec<ResultRow>;
-        let group_rows: &[ResultRow] = if single_group_is_all {
+    for (gi, g) in build_groups.iter().enumerate() {
+        let owned;
+        let rs: &[ResultRow] = if build_groups.len() == 1 && g.rows.len() == rows.len() {
             rows
         } else {
-            owned = g.rows.iter().map(|r| (*r).clone()).collect();
+            owned = group_rows(g);
             &owned
         };
-        let tag = suffix(g);
-        // Per-model plots also carry the model in their file names.
-        let stem_tag = if multi { format!("_{}", machine_name(&g.machine)) } else { String::new() };
-        let mut retitle = |mut s: Section| {
-            if multi {
-                s.title.push_str(&tag);
-                s.id = Box::leak(format!("{}-m{gi}", s.id).into_boxed_str());
-            }
-            s
-        };
+        let (tag, stem_tag) = (build_suffix(g), if multi_build { format!("_{}", machine_name(&g.machine)) } else { String::new() });
         let opt = optimization::section(
-            group_rows,
+            rs,
             reference.as_ref().and_then(|r| r.as_ref().ok()),
             &mut |fig, stem, title, problems| plot(fig, &format!("{stem}{stem_tag}"), &format!("{title}{tag}"), problems),
             &mut problems,
         );
-        optimization_section.extend(opt.into_iter().map(&mut retitle));
+        optimization_section.extend(opt.into_iter().map(|s| retitle(s, multi_build, &tag, gi)));
+    }
+    let mut layouts_section = Vec::new();
+    for (gi, g) in groups.iter().enumerate() {
+        let owned;
+        let rs: &[ResultRow] = if groups.len() == 1 && g.rows.len() == rows.len() {
+            rows
+        } else {
+            owned = group_rows(g);
+            &owned
+        };
+        let (tag, stem_tag) = (suffix(g), if multi { format!("_{}", machine_name(&g.machine)) } else { String::new() });
         let lay = layouts::section(
-            group_rows,
+            rs,
             &mut |fig, stem, title, problems| plot(fig, &format!("{stem}{stem_tag}"), &format!("{title}{tag}"), problems),
             &mut problems,
         );
-        layouts_section.extend(lay.into_iter().map(&mut retitle));
+        layouts_section.extend(lay.into_iter().map(|s| retitle(s, multi, &tag, gi)));
     }
     let mut reference_plots = Vec::new();
     if let Some(Ok(rep)) = &reference {
@@ -399,6 +422,16 @@ pub fn write_report_with(
     let index = out_dir.join("index.html");
     fsutil::write_atomic(&index, html::render(&page).as_bytes())?;
     Ok(index)
+}
+
+/// A per-model copy of a section: the model in its title, a distinct anchor.
+fn retitle(mut s: Section, multi: bool, tag: &str, gi: usize) -> Section {
+    if multi {
+        s.title.push_str(tag);
+        // Anchors must be unique; a report process lives briefly, so leaking a few ids is fine.
+        s.id = Box::leak(format!("{}-m{gi}", s.id).into_boxed_str());
+    }
+    s
 }
 
 /// Object-safe wrapper so one closure can render every figure type.

@@ -143,7 +143,7 @@ pub struct BittnerComparison {
     /// cost, ocost, update_s, build_s.
     pub ours: [f64; 4],
     pub paper: [f64; 4],
-    /// CPU model of our row's timings: time ratios only between rows of one model (issue 12).
+    /// CPU model of our row's construction times: ratios only between rows of one model (issue 12).
     pub machine: String,
 }
 
@@ -541,7 +541,7 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
         let ratio = |a: f64, b: f64| if b > 0.0 && a.is_finite() && b.is_finite() { Some(100.0 * a / b) } else { None };
         let cost = ratio(e.sah_cost, m.sah_cost);
         // A time ratio only between rows timed on one CPU model (issue 12).
-        let build = if crate::analysis::same_timing_machine(e, m) {
+        let build = if crate::analysis::same_build_machine(e, m) {
             ratio(crate::analysis::total_build_seconds(e), crate::analysis::total_build_seconds(m))
         } else {
             None
@@ -672,8 +672,12 @@ fn bittner_compare(dir: &Path, rows: &[ResultRow], rep: &mut ReferenceReport) ->
                 bittner_cost(r).unwrap_or(f64::NAN),
                 r.sah_cost,
                 // Times of a row whose stages ran on different CPU models are not comparable.
-                if r.machine_mixed { f64::NAN } else { r.optimize_seconds.unwrap_or(0.0) },
-                if r.machine_mixed { f64::NAN } else { crate::analysis::total_build_seconds(r) - r.compact_seconds },
+                if r.build_machine.contains(" + ") { f64::NAN } else { r.optimize_seconds.unwrap_or(0.0) },
+                if r.build_machine.contains(" + ") {
+                    f64::NAN
+                } else {
+                    crate::analysis::total_build_seconds(r) - r.compact_seconds
+                },
             ];
             for (label, o, p) in [(BITTNER_COST_LABEL, ours[0], paper[0]), (BITTNER_OCOST_LABEL, ours[1], paper[1])] {
                 if o.is_finite() && p.is_finite() {
@@ -697,7 +701,7 @@ fn bittner_compare(dir: &Path, rows: &[ResultRow], rep: &mut ReferenceReport) ->
                 method: r.method.clone(),
                 ours,
                 paper: *paper,
-                machine: r.machine.clone(),
+                machine: r.build_machine.clone(),
             });
         }
     }

@@ -229,6 +229,8 @@ fn timings_from_two_machines_are_plotted_per_machine() {
         let mut r = row("sphere", "binned-sah", params, cost, secs);
         r.machine = machine.into();
         r.machine_mixed = mixed;
+        // A mixed row here was built on the first model and traced on the second.
+        r.build_machine = machine.split(" + ").next().unwrap().into();
         r
     };
     let dir = tempfile::tempdir().unwrap();
@@ -269,7 +271,10 @@ fn timings_from_two_machines_are_plotted_per_machine() {
         .filter(|e| e.file_name().to_string_lossy().starts_with("sah_") && e.file_name().to_string_lossy().ends_with(".png"))
         .count();
     assert_eq!(sah, 1);
-    // Groups: mixed rows belong to none.
+    // Groups: mixed rows belong to none for trace times, but keep their build time with the model
+    // that built them.
     let g = bvhlab_report::timing_groups(&rows);
     assert_eq!(g.iter().map(|g| (g.machine.as_str(), g.rows.len())).collect::<Vec<_>>(), vec![("CPU A", 2), ("CPU B", 2)]);
+    let g = bvhlab_report::build_timing_groups(&rows);
+    assert_eq!(g.iter().map(|g| (g.machine.as_str(), g.rows.len())).collect::<Vec<_>>(), vec![("CPU A", 3), ("CPU B", 2)]);
 }
