@@ -8,6 +8,9 @@ use std::process::{Command, Output, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
+mod common;
+use common::parse_csv;
+
 const EXPERIMENT: &str = r#"
 name = "together"
 scenes = ["gen:sphere:n=4000", "gen:city:blocks=12", "gen:hairball:n=300"]
@@ -46,34 +49,6 @@ fn json_line(o: &Output) -> serde_json::Value {
         .last()
         .unwrap_or_else(|| panic!("no stdout; stderr: {}", String::from_utf8_lossy(&o.stderr)));
     serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {last}"))
-}
-
-/// Quoted-field-aware CSV reader.
-fn parse_csv(text: &str) -> Vec<Vec<String>> {
-    let mut rows = Vec::new();
-    let (mut row, mut field, mut quoted) = (Vec::new(), String::new(), false);
-    let mut chars = text.chars().peekable();
-    while let Some(c) = chars.next() {
-        match (c, quoted) {
-            ('"', true) if chars.peek() == Some(&'"') => {
-                field.push('"');
-                chars.next();
-            }
-            ('"', _) => quoted = !quoted,
-            (',', false) => row.push(std::mem::take(&mut field)),
-            ('\n', false) => {
-                row.push(std::mem::take(&mut field));
-                rows.push(std::mem::take(&mut row));
-            }
-            ('\r', false) => {}
-            (c, _) => field.push(c),
-        }
-    }
-    if !field.is_empty() || !row.is_empty() {
-        row.push(field);
-        rows.push(row);
-    }
-    rows
 }
 
 fn untimed_rows(report: &Path) -> Vec<Vec<String>> {

@@ -4,11 +4,11 @@
 //! and no lock left that blocks anyone (a killed process's locks are taken over by the next
 //! process that needs them, since its pid is gone; `cache gc` removes the rest).
 use std::path::Path;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
-use common::untimed_rows;
+use common::{command, ok, untimed_rows};
 
 const EXPERIMENT: &str = r#"
 name = "hammer"
@@ -26,34 +26,6 @@ encode = ["morton", "emc64-var"]
 [rays]
 sets = ["random:4000"]
 "#;
-
-fn command(args: &[&str], cwd: &Path) -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_bvhlab"));
-    c.args(args)
-        .current_dir(cwd)
-        .env_remove("BVHLAB_CACHE")
-        .env_remove("BVHLAB_MAX_MEMORY");
-    c
-}
-
-fn json_line(o: &Output) -> serde_json::Value {
-    let s = String::from_utf8_lossy(&o.stdout);
-    let last = s
-        .lines()
-        .last()
-        .unwrap_or_else(|| panic!("no stdout; stderr: {}", String::from_utf8_lossy(&o.stderr)));
-    serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {last}"))
-}
-
-fn ok(o: Output, what: &str) -> serde_json::Value {
-    assert!(
-        o.status.success(),
-        "{what}: exit {:?}: {}",
-        o.status.code(),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    json_line(&o)
-}
 
 fn reference(cwd: &Path) -> (u64, Vec<Vec<(String, String)>>) {
     let v = ok(

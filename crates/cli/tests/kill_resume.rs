@@ -4,7 +4,10 @@
 //! resumption. `scripts/kill-resume.sh` does the same with 20 random kills of experiments/quick.toml.
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Instant;
+
+mod common;
+use common::parse_csv;
 
 fn bvhlab(args: &[&str], cwd: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_bvhlab"))
@@ -36,34 +39,6 @@ compact = "collapse"
 [rays]
 sets = ["primary:24x24", "random:1000"]
 "#;
-
-/// Minimal CSV reader (quoted fields with commas, doubled quotes).
-pub fn parse_csv(text: &str) -> Vec<Vec<String>> {
-    let mut rows = Vec::new();
-    let (mut row, mut field, mut quoted) = (Vec::new(), String::new(), false);
-    let mut chars = text.chars().peekable();
-    while let Some(c) = chars.next() {
-        match (c, quoted) {
-            ('"', true) if chars.peek() == Some(&'"') => {
-                field.push('"');
-                chars.next();
-            }
-            ('"', _) => quoted = !quoted,
-            (',', false) => row.push(std::mem::take(&mut field)),
-            ('\n', false) => {
-                row.push(std::mem::take(&mut field));
-                rows.push(std::mem::take(&mut row));
-            }
-            ('\r', false) => {}
-            (c, _) => field.push(c),
-        }
-    }
-    if !field.is_empty() || !row.is_empty() {
-        row.push(field);
-        rows.push(row);
-    }
-    rows
-}
 
 /// results.csv without the columns that legitimately differ between runs: timings (a resumed run
 /// keeps the killed run's cached timings for the stages it finished), the pass trace (per-pass

@@ -4,10 +4,10 @@
 //! depend on the cache state or the thread count.
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::process::{Command, Output, Stdio};
+use std::process::{Output, Stdio};
 
 mod common;
-use common::untimed_rows;
+use common::{command, json_line, ok, untimed_rows};
 
 const EXPERIMENT: &str = r#"
 name = "sharded"
@@ -30,36 +30,8 @@ compact = "collapse"
 sets = ["random:500"]
 "#;
 
-fn command(args: &[&str], cwd: &Path) -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_bvhlab"));
-    c.args(args)
-        .current_dir(cwd)
-        .env_remove("BVHLAB_CACHE")
-        .env_remove("BVHLAB_MAX_MEMORY");
-    c
-}
-
 fn bvhlab(args: &[&str], cwd: &Path) -> Output {
     command(args, cwd).output().unwrap()
-}
-
-fn json_line(o: &Output) -> serde_json::Value {
-    let s = String::from_utf8_lossy(&o.stdout);
-    let last = s
-        .lines()
-        .last()
-        .unwrap_or_else(|| panic!("no stdout; stderr: {}", String::from_utf8_lossy(&o.stderr)));
-    serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {last}"))
-}
-
-fn ok(o: Output, what: &str) -> serde_json::Value {
-    assert!(
-        o.status.success(),
-        "{what}: exit {:?}: {}",
-        o.status.code(),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    json_line(&o)
 }
 
 fn setup() -> (tempfile::TempDir, u64, Vec<Vec<(String, String)>>) {

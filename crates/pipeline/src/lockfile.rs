@@ -2,11 +2,13 @@
 //!
 //! `flock` is advisory and, on NFS, depends on the lock manager (NLM/NFSv4 leases) that clusters
 //! often misconfigure or disable, and it is silently local on some mounts. This protocol needs only
-//! what NFSv3+ guarantees: exclusive create (O_EXCL), atomic rename within a directory, and
+//! what NFSv3+ guarantees: exclusive `link` (and O_EXCL), atomic rename within a directory, and
 //! close-to-open consistency (a file opened after another client closed it shows its writes).
 //!
-//! - **Acquire**: create the lock file with `create_new` (O_EXCL). It holds one fixed-width record:
-//!   host, pid, the owner's token (unique per `Store`) and a heartbeat counter.
+//! - **Acquire**: write one fixed-width record (host, pid, the owner's token, unique per `Store`, and
+//!   a heartbeat counter) to a temporary file and hard-link it to the lock's name: `link` fails if
+//!   the name exists (as exclusive as O_EXCL), and the lock never exists without its record, so a
+//!   process killed while acquiring leaves nothing a waiter cannot judge.
 //! - **Heartbeat**: while a process holds locks, a background thread rewrites each held record in
 //!   place every `heartbeat` with the counter incremented (through a handle whose token it checked
 //!   first; never by rename, which could replace a new owner's lock).
@@ -227,41 +229,54 @@ impl Drop for Guard {
     }
 }
 
+/// Creates the lock with its record already inside: the record goes to `<lock>.new-<token>`
+/// first and is then hard-linked to the lock's name. `link` fails if the name exists, so it is
+/// as exclusive as O_EXCL, and a process killed at any moment never leaves an empty or half-written
+/// lock (which no waiter could judge by its pid). This is the classic NFS lock-file recipe; on NFS a
+/// lost reply can make a successful `link` report an error, so the temporary's link count decides.
 fn create(path: &Path, token: &str) -> std::io::Result<Option<Guard>> {
-    let mut f = match fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(path)
-    {
-        Ok(f) => f,
-        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => return Ok(None),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            if let Some(d) = path.parent() {
-                fs::create_dir_all(d)?;
-            }
-            match fs::OpenOptions::new()
-                .write(true)
-                .create_new(true)
-                .open(path)
-            {
-                Ok(f) => f,
-                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => return Ok(None),
-                Err(e) => return Err(e),
-            }
-        }
-        Err(e) => return Err(e),
-    };
+    use std::os::unix::fs::MetadataExt;
+    let tmp = path.with_file_name(format!(
+        "{}.new-{token}",
+        path.file_name()
+            .map(|n| n.to_string_lossy())
+            .unwrap_or_default()
+    ));
     let rec = Record {
         host: host_name().to_string(),
         pid: std::process::id(),
         token: token.to_string(),
         beat: 0,
     };
-    let written = f.write_all(&rec.encode()).and_then(|()| f.sync_data());
-    if let Err(e) = written {
-        drop(f);
-        let _ = fs::remove_file(path);
-        return Err(e);
+    let write = |tmp: &Path| -> std::io::Result<()> {
+        let mut f = fs::File::create(tmp)?;
+        f.write_all(&rec.encode())?;
+        f.sync_data()
+    };
+    if let Err(e) = write(&tmp) {
+        if e.kind() != std::io::ErrorKind::NotFound {
+            let _ = fs::remove_file(&tmp);
+            return Err(e);
+        }
+        if let Some(d) = path.parent() {
+            fs::create_dir_all(d)?;
+        }
+        if let Err(e) = write(&tmp) {
+            let _ = fs::remove_file(&tmp);
+            return Err(e);
+        }
+    }
+    let linked = match fs::hard_link(&tmp, path) {
+        Ok(()) => Ok(true),
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(false),
+        Err(e) => match fs::metadata(&tmp) {
+            Ok(m) if m.nlink() == 2 => Ok(true),
+            _ => Err(e),
+        },
+    };
+    let _ = fs::remove_file(&tmp);
+    if !linked? {
+        return Ok(None);
     }
     Ok(Some(Guard {
         path: path.to_path_buf(),

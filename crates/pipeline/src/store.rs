@@ -769,13 +769,24 @@ impl Store {
                         drop(g);
                         removed_locks += 1;
                     }
-                } else if name.contains(".lock.stale-") {
+                } else if name.contains(".lock.stale-") || name.contains(".lock.new-") {
+                    // Leftovers of a process killed while taking or taking over a lock: removed
+                    // once their writer is gone (its token names host tag and pid) or a day old.
+                    let token = name.rsplit_once(".lock.").map(|(_, t)| t).unwrap_or("");
+                    let token = token.split_once('-').map(|(_, t)| t).unwrap_or("");
+                    let mut parts = token.splitn(3, '-');
+                    let (tag, pid) = (
+                        parts.next(),
+                        parts.next().and_then(|p| p.parse::<u32>().ok()),
+                    );
+                    let dead_here = tag == Some(lockfile::host_tag())
+                        && pid.is_some_and(|p| !lockfile::pid_alive(p));
                     let old = fs::metadata(&f)
                         .and_then(|m| m.modified())
                         .ok()
                         .and_then(|t| t.elapsed().ok())
                         .is_some_and(|age| age.as_secs() > 86_400);
-                    if old && fs::remove_file(&f).is_ok() {
+                    if (dead_here || old) && fs::remove_file(&f).is_ok() {
                         removed_locks += 1;
                     }
                 }
@@ -918,6 +929,30 @@ mod tests {
             assert!(root.is_dir());
         }
         assert!(!root.exists());
+    }
+
+    #[test]
+    fn gc_removes_lock_leftovers_of_dead_processes_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = Store::open(dir.path()).unwrap();
+        let d = dir.path().join("locks").join("build");
+        fs::create_dir_all(&d).unwrap();
+        // Writer pid above Linux's pid_max: dead; ours: alive.
+        let dead = format!("ab.lock.new-{}-4999999-0-0", lockfile::host_tag());
+        let live = format!(
+            "cd.lock.new-{}-{}-0-0",
+            lockfile::host_tag(),
+            std::process::id()
+        );
+        fs::write(d.join(&dead), b"x").unwrap();
+        fs::write(d.join(&live), b"y").unwrap();
+        // A lock held by this store is not removed either.
+        s.lock("build", &key(9));
+        let g = s.gc();
+        assert_eq!(g.removed_locks, 1);
+        assert!(!d.join(&dead).exists());
+        assert!(d.join(&live).exists());
+        assert!(s.lock_path("build", &key(9)).exists());
     }
 
     #[test]

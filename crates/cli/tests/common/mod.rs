@@ -1,6 +1,38 @@
 //! Helpers shared by the CLI integration tests that compare result tables.
 #![allow(dead_code)]
 use std::path::Path;
+use std::process::{Command, Output};
+
+/// `bvhlab ARGS` in `cwd`, with the cache and memory environment cleared.
+pub fn command(args: &[&str], cwd: &Path) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_bvhlab"));
+    c.args(args)
+        .current_dir(cwd)
+        .env_remove("BVHLAB_CACHE")
+        .env_remove("BVHLAB_MAX_MEMORY");
+    c
+}
+
+/// The last stdout line of a run, as JSON (every command ends with its JSON summary).
+pub fn json_line(o: &Output) -> serde_json::Value {
+    let s = String::from_utf8_lossy(&o.stdout);
+    let last = s
+        .lines()
+        .last()
+        .unwrap_or_else(|| panic!("no stdout; stderr: {}", String::from_utf8_lossy(&o.stderr)));
+    serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {last}"))
+}
+
+/// `json_line` of a run that must have succeeded.
+pub fn ok(o: Output, what: &str) -> serde_json::Value {
+    assert!(
+        o.status.success(),
+        "{what}: exit {:?}: {}",
+        o.status.code(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    json_line(&o)
+}
 
 /// Quoted-field-aware CSV reader.
 pub fn parse_csv(text: &str) -> Vec<Vec<String>> {
