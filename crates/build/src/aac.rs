@@ -115,6 +115,8 @@ struct Input<'a> {
     c: f64,
     alpha: f64,
     table: Vec<u32>,
+    /// `boxa::pow2_normalizer` of the boxes: distances are f32 half areas of scaled boxes.
+    scale: f32,
 }
 
 impl<'a> Input<'a> {
@@ -134,6 +136,7 @@ impl<'a> Input<'a> {
             c,
             alpha,
             table,
+            scale: crate::boxa::pow2_normalizer(boxes),
         }
     }
 
@@ -178,7 +181,13 @@ impl<'a> Input<'a> {
         let lim = Vec3A::splat(1e38);
         let min = Vec3A::from(b.min).max(-lim).min(lim);
         let max = Vec3A::from(b.max).max(-lim).min(lim).max(min);
-        BoxA { min, max }
+        // Then scaled by a power of two (exact): union areas of the scaled boxes cannot overflow or
+        // underflow f32 at any scene scale, and their order is the unscaled one.
+        let s = Vec3A::splat(self.scale);
+        BoxA {
+            min: min * s,
+            max: max * s,
+        }
     }
 }
 

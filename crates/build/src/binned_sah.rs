@@ -12,10 +12,14 @@ use bvhlab_bvh::{Aabb, Bvh, Node, Vec3};
 use serde::{Deserialize, Serialize};
 
 /// Eq. 6's epsilon: shifts every centroid slightly left so the right boundary needs no special case.
-const BIN_EPSILON: f32 = 1e-5;
+const BIN_EPSILON: f64 = 1e-5;
 /// Thesis 3.1.1: stop when the centroid bounds become "too small" (extent below 1e-7); see
-/// [`CentroidTermination`] for which extent is tested.
-const MIN_CENTROID_EXTENT: f32 = 1e-7;
+/// [`CentroidTermination`] for which extent is tested. The thesis' 1e-7 is absolute (its scenes are
+/// of unit size); bvhlab takes it relative to the node's own box (largest extent), so that a scene in
+/// nanometres is split like the same scene in metres (issue 15: an absolute 1e-7 made every scene
+/// smaller than 1e-7 a single leaf). Relative to the node, not the scene: a far outlier (thesis 4.3,
+/// Riemersma) must not make the rest of the scene "too small" to split.
+const MIN_CENTROID_EXTENT_REL: f64 = 1e-7;
 
 /// Which centroid-bounds extent the "centroid bounds too small" termination (Wald 2007, thesis
 /// 3.1.1) looks at.
@@ -62,7 +66,7 @@ struct Binner {
     count: Vec<u32>,
     bounds: Vec<BoxA>,
     /// Left-sweep results: half area and count of bins `0..=i`.
-    left_area: Vec<f32>,
+    left_area: Vec<f64>,
     left_count: Vec<u32>,
 }
 
@@ -71,15 +75,17 @@ struct Binner {
 struct BinSplit {
     /// Bins `0..=last_left_bin` go left.
     last_left_bin: usize,
-    /// `SA_L * n_L + SA_R * n_R` (half areas).
-    cost: f32,
+    /// `SA_L * n_L + SA_R * n_R` (half areas, f64).
+    cost: f64,
 }
 
 /// Eq. 6 (in the form of eq. 7): `bin = (c - cb_min) * k0` with `k0 = k (1 - eps) / extent`,
-/// clamped so float rounding can never index past the last bin (NaN maps to bin 0).
+/// clamped so float rounding can never index past the last bin (NaN maps to bin 0). In f64: the
+/// difference of two f32 is exact there and cannot overflow (centroids at -3e38 and 3e38), and
+/// scaling the scene by 2^k leaves every bin index unchanged.
 #[inline(always)]
-fn bin_of(c: f32, cb_min: f32, k0: f32, k: usize) -> usize {
-    (((c - cb_min) * k0) as usize).min(k - 1)
+fn bin_of(c: f32, cb_min: f64, k0: f64, k: usize) -> usize {
+    (((c as f64 - cb_min) * k0) as usize).min(k - 1)
 }
 
 impl Binner {
@@ -94,7 +100,7 @@ impl Binner {
     }
 
     /// Bins `prims` along `axis` (eq. 6) into `self.count` / `self.bounds`.
-    fn bin(&mut self, prims: &[PrimRef], axis: usize, cb_min: f32, k0: f32) {
+    fn bin(&mut self, prims: &[PrimRef], axis: usize, cb_min: f64, k0: f64) {
         let k = self.k;
         self.count.fill(0);
         self.bounds.fill(BoxA::EMPTY);
@@ -130,7 +136,7 @@ impl Binner {
             if n_l == 0 || n_r == 0 {
                 continue;
             }
-            let cost = self.left_area[i] * n_l as f32 + acc.half_area() * n_r as f32;
+            let cost = self.left_area[i] * n_l as f64 + acc.half_area() * n_r as f64;
             if best.is_none_or(|b| cost <= b.cost) {
                 best = Some(BinSplit {
                     last_left_bin: i,
@@ -149,24 +155,31 @@ enum Plan {
     Median(usize),
     Bin {
         axis: usize,
-        cb_min: f32,
-        k0: f32,
+        cb_min: f64,
+        k0: f64,
     },
+}
+
+/// The "too small" centroid extent of a node: [`MIN_CENTROID_EXTENT_REL`] times the largest
+/// extent of its box (0 for a point node; +inf never: the extent is an f64 of f32 differences).
+fn min_centroid_extent(r: &Range) -> f64 {
+    MIN_CENTROID_EXTENT_REL * r.bounds.max_extent_f64()
 }
 
 fn plan(r: &Range, k: usize, cfg: &TopDownConfig, term: CentroidTermination) -> Plan {
     if r.len() <= cfg.max_leaf() {
         return Plan::Leaf;
     }
+    let min_ext = min_centroid_extent(r);
     let forced = cfg.forced_single();
     let axis = r.cbounds.largest_axis();
-    let (cb_min, cb_max) = (r.cbounds.min[axis], r.cbounds.max[axis]);
+    let (cb_min, cb_max) = (r.cbounds.min[axis] as f64, r.cbounds.max[axis] as f64);
     let extent = cb_max - cb_min;
-    // `ge` is false for NaN extents too, so those count as too small.
-    let tiny = !extent.ge(&MIN_CENTROID_EXTENT);
-    let min_extent = (r.cbounds.max - r.cbounds.min).min_element();
-    let stop =
-        tiny || (term == CentroidTermination::AnyAxis && !min_extent.ge(&MIN_CENTROID_EXTENT));
+    // `>=` is false for NaN extents too, so those count as too small; a zero extent never bins.
+    let tiny = !(extent >= min_ext && extent > 0.0);
+    let min_extent = (r.cbounds.max.as_dvec3() - r.cbounds.min.as_dvec3()).min_element();
+    let stop = tiny
+        || (term == CentroidTermination::AnyAxis && !(min_extent >= min_ext && min_extent > 0.0));
     if stop && !forced {
         return Plan::Leaf;
     }
@@ -174,7 +187,7 @@ fn plan(r: &Range, k: usize, cfg: &TopDownConfig, term: CentroidTermination) -> 
         // leaf = 1 disables early termination; binning cannot separate these centroids.
         return Plan::Median(axis);
     }
-    let k0 = k as f32 * (1.0 - BIN_EPSILON) / extent;
+    let k0 = k as f64 * (1.0 - BIN_EPSILON) / extent;
     Plan::Bin { axis, cb_min, k0 }
 }
 

@@ -239,7 +239,8 @@ impl Selector<'_> {
 fn split_set(recs: &mut [Rec], cb: BoxA) -> (usize, BoxA, BoxA) {
     debug_assert!(recs.len() >= 2);
     let axis = cb.largest_axis();
-    let mid = 0.5 * (cb.min[axis] + cb.max[axis]);
+    // Halves first: the same float as 0.5 (lo + hi) but no overflow near f32::MAX.
+    let mid = 0.5 * cb.min[axis] + 0.5 * cb.max[axis];
     // One monomorphized loop per axis (no per-element axis dispatch).
     let (i, lcb, rcb) = match axis {
         0 => partition(recs, |r| r.c.x < mid),

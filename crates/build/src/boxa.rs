@@ -31,17 +31,25 @@ impl BoxA {
             max: self.max.max(o.max),
         }
     }
-    /// Half the surface area; 0 for empty boxes. SAH comparisons are scale-invariant, so the builders
-    /// use half areas throughout and save a multiply per candidate.
+    /// Half the surface area in f64; 0 for empty boxes. SAH comparisons are scale-invariant, so the
+    /// builders use half areas throughout and save a multiply per candidate. f64 from the
+    /// subtraction on (`Aabb::area` says why): f32 costs overflowed from coordinates of 1e17 up and
+    /// underflowed below 1e-19, making every split look equally infinite or free (issue 15).
     #[inline(always)]
-    pub fn half_area(&self) -> f32 {
-        let e = (self.max - self.min).max(Vec3A::ZERO);
+    pub fn half_area(&self) -> f64 {
+        let (lo, hi) = (self.min.as_dvec3(), self.max.as_dvec3());
+        let e = (hi - lo).max(glam::DVec3::ZERO);
         e.x * e.y + e.y * e.z + e.z * e.x
     }
     /// Largest-extent axis; ties go to the lower axis (as `Aabb::largest_axis`).
     #[inline]
     pub fn largest_axis(&self) -> usize {
         self.to_aabb().largest_axis()
+    }
+    /// Largest extent over the three axes, in f64 (cannot overflow).
+    #[inline]
+    pub fn max_extent_f64(&self) -> f64 {
+        self.to_aabb().extent_f64().max_element()
     }
     #[inline]
     pub fn to_aabb(self) -> Aabb {
@@ -50,4 +58,35 @@ impl BoxA {
             max: Vec3::from(self.max),
         }
     }
+}
+
+/// Power-of-two factor `s` that brings the largest finite coordinate magnitude of `boxes` into
+/// [0.5, 1) (1 when there is none, or it is 0). The f32 distance kernels of PLOC and AAC
+/// (union half areas) multiply every coordinate by it first: their products then neither overflow
+/// (scenes from 1e17 up) nor underflow (below 1e-19). Scaling by a power of two is exact, so a scene
+/// and the same scene times 2^k get identical scaled coordinates, hence identical trees (issue 15).
+/// The exponent is read from the float's bits, not from a rounded `log2`.
+pub(crate) fn pow2_normalizer(boxes: &[Aabb]) -> f32 {
+    use rayon::prelude::*;
+    let m = boxes
+        .par_iter()
+        .with_min_len(4096)
+        .map(|b| b.min.abs().max(b.max.abs()).max_element())
+        .filter(|m| m.is_finite())
+        .reduce(|| 0.0f32, f32::max);
+    if m == 0.0 || !m.is_finite() {
+        return 1.0;
+    }
+    // m = f 2^e with f in [0.5, 1): s = 2^-e (in f64, so that e up to 149 for subnormal m fits;
+    // the result is clamped to f32's normal powers of two).
+    let (mut f, mut e) = (m as f64, 0i32);
+    while f >= 1.0 {
+        f *= 0.5;
+        e += 1;
+    }
+    while f < 0.5 {
+        f *= 2.0;
+        e -= 1;
+    }
+    (2f64.powi(-e.clamp(-127, 126))) as f32
 }

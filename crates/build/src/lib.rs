@@ -66,8 +66,8 @@ impl TopDownConfig {
     /// `c_I * n <= c_T + c_I * (SA_L n_L + SA_R n_R) / SA_N`.
     /// `split_sum` is `SA_L n_L + SA_R n_R` with the same (half-)area scale as `node_area`.
     #[inline]
-    pub(crate) fn sah_prefers_leaf(&self, n: usize, node_area: f32, split_sum: f32) -> bool {
-        let c = self.cost;
-        c.c_i * n as f32 * node_area <= c.c_t * node_area + c.c_i * split_sum
+    pub(crate) fn sah_prefers_leaf(&self, n: usize, node_area: f64, split_sum: f64) -> bool {
+        let (c_t, c_i) = (self.cost.c_t as f64, self.cost.c_i as f64);
+        c_i * n as f64 * node_area <= c_t * node_area + c_i * split_sum
     }
 }

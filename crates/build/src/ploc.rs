@@ -86,25 +86,6 @@ impl Boxes {
     }
 }
 
-/// Power-of-two factor that brings every coordinate into [-1, 1] when the scene is so large that
-/// union areas could overflow f32 (|x| > 2^32); 1 otherwise. Scaling by a power of two is exact,
-/// so distances keep their order (up to underflow of tiny extents, which only adds ties).
-fn area_scale(boxes: &[Aabb]) -> f32 {
-    let m = boxes
-        .par_iter()
-        .with_min_len(CHUNK)
-        .map(|b| b.min.abs().max(b.max.abs()).max_element())
-        .filter(|m| m.is_finite())
-        .reduce(|| 0.0f32, f32::max);
-    if m <= 4294967296.0 {
-        return 1.0;
-    }
-    // m <= 2^e, e <= 128. 2^-126 is the smallest normal power of two; it leaves |x| <= 4, still
-    // far from overflow.
-    let e = m.log2().ceil() as i32;
-    2f32.powi(-(e.min(126)))
-}
-
 /// The merges of PLOC over primitives in code order: returns `children` of a cluster tree whose
 /// leaf `k` is the k-th primitive in code order and whose inner node `n + m` is the m-th merge,
 /// and the root id.
@@ -114,7 +95,7 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
     if n < 2 {
         return (children, 0);
     }
-    let s = area_scale(boxes);
+    let s = crate::boxa::pow2_normalizer(boxes);
     let simd = avx2_available();
     // Large radii get larger chunks, so the recomputed border pairs stay a small share.
     let nn_chunk = CHUNK.max(r.saturating_mul(8));

@@ -29,7 +29,8 @@ fn split(refs: &mut [PrimRef], r: &Range, max_leaf: usize) -> Option<(Range, Ran
     }
     let axis = r.cbounds.largest_axis();
     let (lo, hi) = (r.cbounds.min[axis], r.cbounds.max[axis]);
-    let mid = 0.5 * (lo + hi);
+    // Halves first: the same float as 0.5 (lo + hi) but no overflow near f32::MAX.
+    let mid = 0.5 * lo + 0.5 * hi;
     let (left, right) = partition(refs, r, |p| p.c[axis] < mid);
     if left.len() == 0 || right.len() == 0 {
         return Some(object_median(refs, r, axis));

@@ -43,15 +43,15 @@ impl SweepRef {
 struct SweepSplit {
     axis: usize,
     n_left: usize,
-    /// `SA_L * n_L + SA_R * n_R` (half areas).
-    cost: f32,
+    /// `SA_L * n_L + SA_R * n_R` (half areas, f64: see `BoxA::half_area`).
+    cost: f64,
 }
 
 /// Builder state: the three presorted arrays and scratch buffers, allocated once per build.
 struct Sweeper {
     sorted: [Vec<SweepRef>; 3],
     /// Right-sweep half areas: `right_area[i]` is the area of elements `i..` of the current range.
-    right_area: Vec<f32>,
+    right_area: Vec<f64>,
     /// Scratch for the stable partition (right part).
     tmp: Vec<SweepRef>,
     /// Side flag per primitive index (thesis 3.3.1).
@@ -191,7 +191,7 @@ impl Sweeper {
         let mut best = SweepSplit {
             axis: 0,
             n_left: n / 2,
-            cost: f32::INFINITY,
+            cost: f64::INFINITY,
         };
         for axis in 0..3 {
             let a = &self.sorted[axis][r.begin..r.end];
@@ -213,10 +213,10 @@ impl Sweeper {
                 acc.grow(a[i].min(), a[i].max());
                 let cost = if WEIGHTED {
                     w_l += a[i].w as u64;
-                    acc.half_area() * w_l as f32 + right_area[i + 1] * (total - w_l) as f32
+                    acc.half_area() * w_l as f64 + right_area[i + 1] * (total - w_l) as f64
                 } else {
-                    let n_l = (i + 1) as f32;
-                    acc.half_area() * n_l + right_area[i + 1] * (n as f32 - n_l)
+                    let n_l = (i + 1) as f64;
+                    acc.half_area() * n_l + right_area[i + 1] * (n as f64 - n_l)
                 };
                 if cost < best.cost {
                     best = SweepSplit {

@@ -47,32 +47,41 @@ impl Aabb {
     pub fn extent(&self) -> Vec3 {
         self.max - self.min
     }
+    /// The centre, computed as `min/2 + max/2`: the same float as `(min + max)/2` for normal
+    /// numbers (halving is exact), but it cannot overflow for boxes near f32::MAX (issue 15).
     #[inline]
     pub fn center(&self) -> Vec3 {
-        (self.min + self.max) * 0.5
+        self.min * 0.5 + self.max * 0.5
     }
-    /// Surface area; 0 for the empty box (so empty bins add nothing to SAH sums).
+    /// The extent in f64: `max - min` cannot overflow there (f32 boxes spanning -3e38..3e38).
     #[inline]
-    pub fn area(&self) -> f32 {
-        let e = self.max - self.min;
+    pub fn extent_f64(&self) -> glam::DVec3 {
+        self.max.as_dvec3() - self.min.as_dvec3()
+    }
+    /// Surface area in f64; 0 for the empty box (so empty bins add nothing to SAH sums).
+    ///
+    /// Why f64 everywhere (issue 15, scale invariance): a product of two f32 is exact in f64 and the
+    /// f64 range (1e±308) holds the square of any finite f32, so areas neither overflow (coordinates
+    /// from 1e17 up made every f32 split cost infinite) nor underflow (below 1e-19 f32 areas vanish),
+    /// and scaling a scene by 2^k scales every area by exactly 4^k: the same comparisons, the same tree.
+    #[inline]
+    pub fn area(&self) -> f64 {
+        let e = self.extent_f64();
         if e.x < 0.0 || e.y < 0.0 || e.z < 0.0 {
             return 0.0;
         }
         2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
     }
-    /// Surface area in f64, for metrics sums over millions of nodes.
+    /// Same as [`Aabb::area`] (kept for call sites that say which precision they rely on).
     #[inline]
     pub fn area_f64(&self) -> f64 {
-        let e = (self.max - self.min).as_dvec3();
-        if e.x < 0.0 || e.y < 0.0 || e.z < 0.0 {
-            return 0.0;
-        }
-        2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
+        self.area()
     }
-    /// Index (0, 1, 2) of the axis with the largest extent; ties go to the lower axis.
+    /// Index (0, 1, 2) of the axis with the largest extent; ties go to the lower axis. Extents in
+    /// f64, so that two axes spanning more than f32::MAX still compare.
     #[inline]
     pub fn largest_axis(&self) -> usize {
-        let e = self.extent();
+        let e = self.extent_f64();
         if e.x >= e.y && e.x >= e.z {
             0
         } else if e.y >= e.z {

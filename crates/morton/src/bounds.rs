@@ -108,7 +108,7 @@ pub fn diag(e: [f64; 3]) -> f64 {
 /// Diagonal of a primitive box; 0 for empty or non-finite boxes.
 #[inline]
 pub fn box_diag(b: &Aabb) -> f64 {
-    let e = (b.max - b.min).as_dvec3();
+    let e = b.extent_f64(); // f64 subtraction: no overflow for boxes spanning +-3e38
     let d = diag([e.x.max(0.0), e.y.max(0.0), e.z.max(0.0)]);
     if d.is_finite() {
         d

@@ -100,7 +100,7 @@ pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
     let mut rng = crate::SplitMix64::new(cfg.seed);
     let mut scratch = SearchScratch::new();
     let mut keyed: Vec<(f64, u32)> = Vec::with_capacity(cand.len());
-    let mut area: Vec<f32> = Vec::with_capacity(tree.nodes.len());
+    let mut area: Vec<f64> = Vec::with_capacity(tree.nodes.len());
     let mut batch: Vec<u32> = Vec::with_capacity(k);
     let mut best_cost = c0;
     let mut best_pass = 0u32;
@@ -342,8 +342,8 @@ fn ratio(a: f64, b: f64) -> f64 {
 /// Inefficiency of inner node `n` (Bittner 2013 3.4; thesis eq. 9-12), in f64 (SA^3 of `comb`
 /// overflows f32 on large scenes): `sum` = SA(N) / mean SA(children), `min` = SA(N) / min
 /// SA(children), `area` = SA(N), `comb` = their product. Leaves and `Random` give 0.
-pub fn measure_value(tree: &DynTree, n: u32, m: Measure) -> f32 {
-    measure_f64(tree, n, m) as f32
+pub fn measure_value(tree: &DynTree, n: u32, m: Measure) -> f64 {
+    measure_f64(tree, n, m)
 }
 
 #[inline]
@@ -370,10 +370,9 @@ fn min_positive(a: f64, b: f64) -> f64 {
     }
 }
 
-/// The measure from the areas of N and its children (f32 areas as the search uses, f64 product).
+/// The measure from the areas of N and its children (f64, as the search uses).
 #[inline]
-fn measure_of(sa: f32, sl: f32, sr: f32, m: Measure) -> f64 {
-    let (sa, sl, sr) = (sa as f64, sl as f64, sr as f64);
+fn measure_of(sa: f64, sl: f64, sr: f64, m: Measure) -> f64 {
     match m {
         Measure::Sum => ratio(sa, 0.5 * (sl + sr)),
         Measure::Min => ratio(sa, min_positive(sl, sr)),

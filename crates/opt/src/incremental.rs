@@ -232,7 +232,7 @@ fn optimize_cached(
 ) {
     stats.passes += 1;
     // Candidates: cached inner nodes that have a parent (the root cannot be updated).
-    let mut cand: Vec<(f32, u32)> = cached
+    let mut cand: Vec<(f64, u32)> = cached
         .iter()
         .filter(|&&c| tree.parent[c as usize] != NONE)
         .map(|&c| (measure_value(tree, c, Measure::Comb), c))
@@ -247,7 +247,7 @@ fn optimize_cached(
     let base = k_base.unwrap_or(cand.len());
     let k = ((ofrac as f64 * base as f64).round() as usize).clamp(1, cand.len());
     // Highest measure first, ties by node index.
-    let order = |a: &(f32, u32), b: &(f32, u32)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
+    let order = |a: &(f64, u32), b: &(f64, u32)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
     if k < cand.len() {
         cand.select_nth_unstable_by(k - 1, order);
         cand.truncate(k);

@@ -10,11 +10,11 @@ use std::collections::BinaryHeap;
 /// thousands of searches allocates once.
 #[derive(Default)]
 pub struct SearchScratch {
-    /// Entries with a positive induced cost, lowest first. Key: `induced.to_bits() << 32 | node`:
-    /// induced costs are never negative (SA(X ∪ L) >= SA(X) holds in f32 too, min/max are exact and
-    /// the area is monotone in the extents), so the bit pattern orders like the value, and equal
+    /// Entries with a positive induced cost, lowest first. Key: `(induced.to_bits(), node)`:
+    /// induced costs are never negative (SA(X ∪ L) >= SA(X) holds in floats too, min/max are exact
+    /// and the area is monotone in the extents), so the bit pattern orders like the value, and equal
     /// costs pop by node index (deterministic, no float comparison in the heap).
-    heap: BinaryHeap<Reverse<u64>>,
+    heap: BinaryHeap<Reverse<(u64, u32)>>,
     /// Entries with induced cost exactly 0 (the subtree of X already contains L's box up to the
     /// root): the thesis' zero-priority bucket (3.4.2), a plain stack popped before the heap.
     zero: Vec<u32>,
@@ -41,13 +41,14 @@ impl SearchScratch {
 /// time), leaves never enter the queue, and an entry carries the tighter bound of its subtree.
 /// The pruning rules are the paper's: an entry whose bound C_I + SA(L) cannot beat C_best is not
 /// queued, and the search ends when the lowest queued bound cannot (algorithm 1, line 6; every
-/// queued entry has at least that bound). Areas in f32 (the optimizer measures cost in f64).
-pub fn find_best(tree: &DynTree, l: &Aabb, scratch: &mut SearchScratch) -> (u32, f32) {
+/// queued entry has at least that bound). Areas in f64 (`Aabb::area`): in f32 they overflowed from
+/// coordinates of 1e17 up and underflowed below 1e-19, so every candidate tied (issue 15).
+pub fn find_best(tree: &DynTree, l: &Aabb, scratch: &mut SearchScratch) -> (u32, f64) {
     let SearchScratch { heap, zero, visited } = scratch;
     heap.clear();
     zero.clear();
     if tree.root == crate::tree::NONE {
-        return (crate::tree::NONE, f32::INFINITY);
+        return (crate::tree::NONE, f64::INFINITY);
     }
     let sa_l = l.area();
     let nodes = &tree.nodes;
@@ -62,15 +63,15 @@ pub fn find_best(tree: &DynTree, l: &Aabb, scratch: &mut SearchScratch) -> (u32,
             if ci == 0.0 {
                 zero.push(tree.root);
             } else {
-                heap.push(Reverse(((ci.to_bits() as u64) << 32) | tree.root as u64));
+                heap.push(Reverse((ci.to_bits(), tree.root)));
             }
         }
     }
     loop {
         let (x, ci) = if let Some(x) = zero.pop() {
-            (x, 0.0f32)
-        } else if let Some(Reverse(key)) = heap.pop() {
-            ((key & 0xffff_ffff) as u32, f32::from_bits((key >> 32) as u32))
+            (x, 0.0f64)
+        } else if let Some(Reverse((bits, x))) = heap.pop() {
+            (x, f64::from_bits(bits))
         } else {
             break;
         };
@@ -98,7 +99,7 @@ pub fn find_best(tree: &DynTree, l: &Aabb, scratch: &mut SearchScratch) -> (u32,
                 if ci_child == 0.0 {
                     zero.push(child);
                 } else {
-                    heap.push(Reverse(((ci_child.to_bits() as u64) << 32) | child as u64));
+                    heap.push(Reverse((ci_child.to_bits(), child)));
                 }
             }
         }
@@ -114,9 +115,9 @@ mod tests {
     use bvhlab_geom::rng::SplitMix64;
 
     /// Exhaustive reference: every reachable node, cost = induced + SA(X ∪ L).
-    fn exhaustive(tree: &DynTree, l: &Aabb) -> f32 {
-        let mut best = f32::INFINITY;
-        let mut stack = vec![(tree.root, 0.0f32)];
+    fn exhaustive(tree: &DynTree, l: &Aabb) -> f64 {
+        let mut best = f64::INFINITY;
+        let mut stack = vec![(tree.root, 0.0f64)];
         while let Some((x, induced)) = stack.pop() {
             let d = &tree.nodes[x as usize];
             let merged = d.bounds.union(l).area();

@@ -18,11 +18,17 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 pub const LOAD_VERSION: u32 = 1;
-pub const ENCODE_VERSION: u32 = 2;
+/// 3: EMC size of boxes spanning more than the f32 range (issue 15).
+pub const ENCODE_VERSION: u32 = 3;
 /// 2: bottom-up builders (lbvh, aac, ploc) and the reworked (parallel) binned SAH.
-pub const BUILD_VERSION: u32 = 2;
-pub const COMPACT_VERSION: u32 = 1;
-pub const OPTIMIZE_VERSION: u32 = 1;
+/// 3: scale-free costs (issue 15): SAH areas and costs in f64, binned SAH bins in f64 and its
+///    "centroids too close" threshold relative to the scene extent, PLOC/AAC distances of boxes
+///    prescaled by a power of two.
+pub const BUILD_VERSION: u32 = 3;
+/// 2: areas of boxes spanning more than the f32 range (issue 15).
+pub const COMPACT_VERSION: u32 = 2;
+/// 2: f64 areas in the insertion search and the measures (issue 15).
+pub const OPTIMIZE_VERSION: u32 = 2;
 /// 2: traversal keeps a popped node whose entry equals the best t within the slab margin (ties).
 /// 3: optional layout input (its own traversal, bvh2 anchor timed alternately, extra hits/tests).
 /// 4: ray-triangle t in f64 (far rays could disagree with brute force in f32); axis-parallel rays
