@@ -139,19 +139,43 @@ fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, Outcome> {
     catch_unwind(AssertUnwindSafe(f)).map_err(|e| Outcome::Panic(panic_text(e)))
 }
 
+/// What a method built: a BVH (builders, compaction, optimizers), a layout (or its refusal), or a
+/// panic.
+pub enum Built {
+    Bvh(Bvh),
+    Layout(Result<bvhlab_layout::Layout, String>),
+    Panic(String),
+}
+
 /// Runs every method on `input`, calling `report(label, outcome)` for each.
 pub fn run_all(input: &Input, opts: Opts, report: &mut dyn FnMut(&str, Outcome)) {
+    for_each_structure(input, opts, &mut |label, built| {
+        let o = match built {
+            Built::Bvh(bvh) => input.bvh_outcome(bvh),
+            Built::Layout(Err(e)) => Outcome::Refused(e.clone()),
+            Built::Layout(Ok(l)) => layout_hits(l, input),
+            Built::Panic(p) => Outcome::Panic(p.clone()),
+        };
+        report(label, o)
+    })
+}
+
+/// Runs every method on `input` and hands each structure to `report` (the matrix of [`run_all`];
+/// the scale tests compare the structures themselves).
+pub fn for_each_structure(input: &Input, opts: Opts, report: &mut dyn FnMut(&str, &Built)) {
     let reg = Registry::standard();
     let cost = CostParams::default();
     let mut opt_inputs: Vec<(String, Bvh)> = Vec::new();
     let mut layout_inputs: Vec<(String, Bvh)> = Vec::new();
 
-    let tree = |label: String, bvh: Bvh, report: &mut dyn FnMut(&str, Outcome)| {
-        report(&label, input.bvh_outcome(&bvh));
+    let tree = |label: String, bvh: Bvh, report: &mut dyn FnMut(&str, &Built)| {
+        let b = Built::Bvh(bvh);
+        report(&label, &b);
+        let Built::Bvh(bvh) = b else { unreachable!() };
         if opts.collapse {
             match guarded(|| collapse(&bvh, cost)) {
-                Ok(c) => report(&format!("{label} +collapse"), input.bvh_outcome(&c)),
-                Err(o) => report(&format!("{label} +collapse"), o),
+                Ok(c) => report(&format!("{label} +collapse"), &Built::Bvh(c)),
+                Err(o) => report(&format!("{label} +collapse"), &panic_of(o)),
             }
         }
         bvh
@@ -190,7 +214,7 @@ pub fn run_all(input: &Input, opts: Opts, report: &mut dyn FnMut(&str, Outcome))
                             layout_inputs.push((label, bvh));
                         }
                     }
-                    Err(o) => report(&label, o),
+                    Err(o) => report(&label, &panic_of(o)),
                 }
                 continue;
             }
@@ -222,10 +246,10 @@ pub fn run_all(input: &Input, opts: Opts, report: &mut dyn FnMut(&str, Outcome))
                 });
                 match built {
                     Ok((raw_tree, built)) => {
-                        report(&format!("{label} raw"), input.bvh_outcome(&raw_tree));
+                        report(&format!("{label} raw"), &Built::Bvh(raw_tree));
                         tree(label, built, report);
                     }
-                    Err(o) => report(&label, o),
+                    Err(o) => report(&label, &panic_of(o)),
                 }
             }
         }
@@ -246,7 +270,7 @@ pub fn run_all(input: &Input, opts: Opts, report: &mut dyn FnMut(&str, Outcome))
                     Ok(out) => {
                         tree(label, out.bvh, report);
                     }
-                    Err(p) => report(&label, p),
+                    Err(p) => report(&label, &panic_of(p)),
                 }
             }
         }
@@ -273,11 +297,29 @@ pub fn run_all(input: &Input, opts: Opts, report: &mut dyn FnMut(&str, Outcome))
                     .unwrap_or_else(|e| panic!("layout {name} {given:?}: {e}"));
                 for (base, bvh) in bases {
                     let label = format!("layout {name} [{}] <- {base}", kv_string(given));
-                    report(&label, layout_outcome(&spec, bvh, input));
+                    let built = guarded(|| bvhlab_layout::build(&spec, bvh, input.tris));
+                    report(&label, &built.map(Built::Layout).unwrap_or_else(|o| panic_of(o)));
                 }
             }
         }
     }
+}
+
+fn panic_of(o: Outcome) -> Built {
+    match o {
+        Outcome::Panic(p) => Built::Panic(p),
+        _ => unreachable!("guarded only fails with a panic"),
+    }
+}
+
+fn layout_hits(l: &bvhlab_layout::Layout, input: &Input) -> Outcome {
+    guarded(|| {
+        if let Err(e) = l.validate(input.tris) {
+            return Outcome::Invalid(e);
+        }
+        Outcome::Hits(l.trace(input.tris, input.rays).hits)
+    })
+    .unwrap_or_else(|o| o)
 }
 
 pub fn layout_outcome(spec: &LayoutSpec, bvh: &Bvh, input: &Input) -> Outcome {
