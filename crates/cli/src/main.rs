@@ -267,6 +267,11 @@ fn run(cli: Cli) -> Result<()> {
             let mut runner = Runner::new(store);
             let progress = std::io::stderr().is_terminal();
             let res = bvhlab_pipeline::with_threads(threads, || sweep(&exp, &mut runner, progress))??;
+            let warnings: std::collections::BTreeSet<&String> =
+                res.rows.iter().filter_map(|r| r.precision_warning.as_ref()).collect();
+            for w in warnings {
+                eprintln!("warning: {w}");
+            }
             let out_dir = out.unwrap_or_else(|| PathBuf::from("reports").join(&exp.name));
             let reference = reference_dir(&experiment);
             let report = bvhlab_report::write_report(&out_dir, &exp.name, &res.rows, reference.as_deref())
@@ -327,6 +332,9 @@ fn run(cli: Cli) -> Result<()> {
             let store = if no_cache { Store::temporary()? } else { Store::open(store::resolve_root(cache.as_deref()))? };
             let mut runner = Runner::new(store);
             let row = bvhlab_pipeline::with_threads(threads, || runner.run_chain(&spec, "eval"))??;
+            if let Some(w) = &row.precision_warning {
+                eprintln!("warning: {w}");
+            }
             let mut v = serde_json::to_value(&row).map_err(|e| Error::internal(e.to_string()))?;
             if let Some(o) = v.as_object_mut() {
                 o.insert("computed".into(), runner.counts.computed.into());

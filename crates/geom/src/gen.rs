@@ -188,16 +188,17 @@ fn table() -> Vec<Gen> {
         Gen {
             info: GeneratorInfo {
                 name: "scale",
-                about: "random small triangles in the cube [0, s]^3: s = 1e-30 or 1e30 tests float range \
-                        (areas under- or overflow f32)",
+                about: "random small triangles in the cube [0, s]^3 moved by t s along every axis: s = 1e-30 or \
+                        1e30 tests float range (areas under- or overflow f32), t = 10^k precision far from the origin",
                 params: &[
                     ("n", "2000", "triangle count (exact)"),
                     ("s", "1", "scale of every coordinate"),
+                    ("t", "0", "translation in units of the cube side (the cube spans [t s, (t + 1) s])"),
                     ("seed", "1", "random seed"),
                 ],
             },
-            ranges: &[Range::Int(1, N_MAX), Range::Float(1e-37, 1e37), SEED],
-            build: |p| scale(p.int("n"), p.float("s"), p.int("seed")),
+            ranges: &[Range::Int(1, N_MAX), Range::Float(1e-37, 3.4e38), Range::Float(-1e30, 1e30), SEED],
+            build: |p| scale(p.int("n"), p.float("s"), p.float("t"), p.int("seed")),
         },
         Gen {
             info: GeneratorInfo {
@@ -747,13 +748,15 @@ fn same_centroid(n: u64, seed: u64) -> Vec<Triangle> {
         .collect()
 }
 
-/// Random small triangles in the unit cube, every coordinate times `s` (in f64, rounded once).
-fn scale(n: u64, s: f64, seed: u64) -> Vec<Triangle> {
+/// Random small triangles in the unit cube moved by `t`, every coordinate times `s` (in f64,
+/// rounded once; coordinates beyond f32::MAX become infinite and are dropped by the scene).
+fn scale(n: u64, s: f64, t: f64, seed: u64) -> Vec<Triangle> {
     let mut rng = Rng::new(seed);
+    let o = DVec3::splat(t);
     (0..n)
         .map(|_| {
             let (a, b, c) = small_tri(&mut rng, 0.05);
-            tri(a * s, b * s, c * s)
+            tri((a + o) * s, (b + o) * s, (c + o) * s)
         })
         .collect()
 }

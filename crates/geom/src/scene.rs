@@ -55,6 +55,42 @@ impl Scene {
         }
         b
     }
+    /// How much f32 rounds this scene's geometry: the spacing of f32 values at the largest
+    /// coordinate magnitude (one ulp there) over the median length of the non-zero triangle edges
+    /// (over at most about 100k triangles, evenly strided). A scene far from the origin relative to
+    /// its detail (issue 15: a model moved by 10^6 of its size) has lost its shape to rounding when
+    /// this approaches 1; 0 for a scene without edges. Scale-free: a scene times 2^k gives the same
+    /// value.
+    pub fn precision_loss(&self) -> f64 {
+        let mut max_abs = 0.0f32;
+        for t in &self.triangles {
+            for v in t.v {
+                max_abs = max_abs.max(v.abs().max_element());
+            }
+        }
+        let stride = (self.triangles.len() / 100_000).max(1);
+        let mut edges: Vec<f64> = Vec::new();
+        for t in self.triangles.iter().step_by(stride) {
+            for (a, b) in [(0, 1), (1, 2), (2, 0)] {
+                let d = t.v[a].as_dvec3() - t.v[b].as_dvec3();
+                let l = d.length();
+                if l > 0.0 {
+                    edges.push(l);
+                }
+            }
+        }
+        if edges.is_empty() || !(max_abs > 0.0) {
+            return 0.0;
+        }
+        let mid = edges.len() / 2;
+        let median = *edges.select_nth_unstable_by(mid, f64::total_cmp).1;
+        // One ulp at max_abs: the next float up minus it (f32::MAX: the ulp below).
+        let m = max_abs as f64;
+        let up = f32::from_bits(max_abs.to_bits() + 1);
+        let ulp = if up.is_finite() { up as f64 - m } else { m - f32::from_bits(max_abs.to_bits() - 1) as f64 };
+        ulp / median
+    }
+
     /// Per-primitive boxes and centres: the only input builders see (bvh v2 style).
     pub fn boxes_and_centers(&self) -> (Vec<Aabb>, Vec<Vec3>) {
         let boxes: Vec<Aabb> = self.triangles.iter().map(|t| t.bounds()).collect();

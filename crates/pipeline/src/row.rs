@@ -14,6 +14,12 @@ pub struct ResultRow {
     pub scene_name: String,
     pub triangles: u64,
     pub dropped_triangles: u64,
+    /// `Scene::precision_loss` (f32 spacing at the largest coordinate over the median edge).
+    #[serde(default)]
+    pub precision_loss: Option<f64>,
+    /// Set when `precision_loss` exceeds `stages::PRECISION_LOSS_WARN` (issue 15).
+    #[serde(default)]
+    pub precision_warning: Option<String>,
     /// Builder name (`binned-sah`, ...).
     pub builder: String,
     /// Canonical builder parameters, `k=v` joined by `,` in key order (e.g. `bins=16,leaf=2`).

@@ -459,6 +459,7 @@ impl Runner {
             triangles: scene.triangles.len() as u64,
             dropped_triangles: scene.dropped_triangles,
             bounds: scene.bounds(),
+            precision_loss: scene.precision_loss(),
         };
         let mut files = BTreeMap::new();
         files.insert(
@@ -497,6 +498,7 @@ impl Runner {
                     triangles: scene.triangles.len() as u64,
                     dropped_triangles: scene.dropped_triangles,
                     bounds: scene.bounds(),
+                    precision_loss: scene.precision_loss(),
                 };
                 self.store.put("load", &key, "sum", &s)?;
                 self.scene_sums.insert(key, s.clone());
@@ -1418,6 +1420,8 @@ impl Runner {
             scene_name: scene_name(&spec.scene),
             triangles: scene.triangles,
             dropped_triangles: scene.dropped_triangles,
+            precision_loss: Some(scene.precision_loss),
+            precision_warning: crate::stages::precision_warning(&spec.scene, scene.precision_loss),
             builder: plan.resolved.builder.clone(),
             build_params: params_string(&plan.resolved.params),
             compact: spec.compact.clone(),

@@ -17,7 +17,8 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-pub const LOAD_VERSION: u32 = 1;
+/// 2: the summary carries `precision_loss` (issue 15).
+pub const LOAD_VERSION: u32 = 2;
 /// 3: EMC size of boxes spanning more than the f32 range (issue 15).
 pub const ENCODE_VERSION: u32 = 3;
 /// 2: bottom-up builders (lbvh, aac, ploc) and the reworked (parallel) binned SAH.
@@ -292,6 +293,23 @@ pub struct SceneSummary {
     pub triangles: u64,
     pub dropped_triangles: u64,
     pub bounds: Aabb,
+    /// `Scene::precision_loss`: f32 spacing at the largest coordinate over the median edge length.
+    pub precision_loss: f64,
+}
+
+/// Above this `precision_loss` (f32 spacing at the scene's largest coordinate > 1 % of its median
+/// edge) rounding has visibly moved vertices: rows carry a warning (issue 15: a scene translated
+/// by 10^k of its size keeps its SAH within 2 % until about here).
+pub const PRECISION_LOSS_WARN: f64 = 0.01;
+
+/// The warning for a scene whose coordinates f32 can no longer resolve finely enough.
+pub fn precision_warning(scene: &str, loss: f64) -> Option<String> {
+    (loss > PRECISION_LOSS_WARN).then(|| {
+        format!(
+            "{scene}: f32 precision loss: at the largest coordinate, f32 values are {:.3} median edge lengths apart              (warning above {PRECISION_LOSS_WARN}); vertices are rounded visibly, so costs and hits are those of the              rounded scene (move it nearer the origin)",
+            loss
+        )
+    })
 }
 
 /// Summary of a BVH-producing stage (`build`, `compact`): metrics, validity, hash and timings.

@@ -104,6 +104,15 @@ pub fn render(p: &Page) -> String {
         h.push_str("<p class=\"warn\">No results: the experiment produced no rows.</p>\n");
     }
     invalid_box(&mut h, &invalid);
+    let precision: std::collections::BTreeSet<&String> =
+        p.rows.iter().filter_map(|r| r.precision_warning.as_ref()).collect();
+    if !precision.is_empty() {
+        h.push_str("<h2>Precision warnings</h2><ul>");
+        for w in precision {
+            let _ = write!(h, "<li class=\"warn\">{}</li>", escape(w));
+        }
+        h.push_str("</ul>\n");
+    }
     h.push_str(&p.notices);
     if !p.problems.is_empty() {
         h.push_str("<h2>Problems while making this report</h2><ul>");
