@@ -50,6 +50,8 @@ pub struct IboConfig {
     pub max_passes: u32,
     /// 0 = no limit.
     pub max_seconds: f64,
+    /// Stop after [`pass_budget`] passes (`Stop::PassBudget`) even without `max_passes`.
+    pub budget: bool,
     /// Return the best tree seen instead of the last (the thesis' oscillation, 5.2.1).
     pub keep_best: bool,
     /// Seed of random sampling.
@@ -66,11 +68,23 @@ impl Default for IboConfig {
             pr: 5,
             max_passes: 0,
             max_seconds: 0.0,
+            budget: true,
             keep_best: true,
             seed: 1,
             cost: CostParams::default(),
         }
     }
+}
+
+/// Reinsertions per inner node that the default budget allows: a converging run updates each node
+/// a few times (Bittner 2013 figure 7: most of the gain in the first passes), so 25 only cuts
+/// runs that keep finding float-sized gains forever.
+pub const BUDGET_UPDATES_PER_NODE: u64 = 25;
+
+/// The default pass budget of a tree with `inner` inner nodes updated `k` per pass:
+/// `BUDGET_UPDATES_PER_NODE * inner / k` passes, at least 100.
+pub fn pass_budget(inner: usize, k: usize) -> u32 {
+    (BUDGET_UPDATES_PER_NODE * inner as u64).div_ceil(k.max(1) as u64).clamp(100, u32::MAX as u64) as u32
 }
 
 /// Optimizes `bvh` (any builder's output, any leaf sizes: leaves move as units).
@@ -187,6 +201,9 @@ pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
         }
         if cfg.max_passes > 0 && pass >= cfg.max_passes {
             break crate::Stop::MaxPasses;
+        }
+        if cfg.budget && pass >= pass_budget(inner.len(), k) {
+            break crate::Stop::PassBudget;
         }
         if cfg.max_seconds > 0.0 && start.elapsed().as_secs_f64() >= cfg.max_seconds {
             break crate::Stop::MaxSeconds;

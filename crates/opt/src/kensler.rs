@@ -47,9 +47,18 @@ pub struct KenslerConfig {
     pub max_passes: u32,
     /// 0 = no limit.
     pub max_seconds: f64,
+    /// Stop after [`pass_budget`] passes (`Stop::PassBudget`) even without `max_passes`.
+    pub budget: bool,
     pub keep_best: bool,
     pub seed: u64,
     pub cost: CostParams,
+}
+
+/// The default pass budget for a tree of `nodes` nodes: 16 log2(nodes) + 64 passes (every pass
+/// visits every node; hill climbing converges in tens of passes on the papers' scenes, so this only
+/// cuts runs that keep finding float-sized gains).
+pub fn pass_budget(nodes: usize) -> u32 {
+    16 * (usize::BITS - nodes.max(1).leading_zeros()) + 64
 }
 
 impl Default for KenslerConfig {
@@ -62,6 +71,7 @@ impl Default for KenslerConfig {
             cooling: 0.9,
             max_passes: 0,
             max_seconds: 0.0,
+            budget: true,
             keep_best: true,
             seed: 1,
             cost: CostParams::default(),
@@ -268,6 +278,9 @@ pub fn optimize_scaled(bvh: &Bvh, cfg: &KenslerConfig, scale: TempScale) -> Opti
         }
         if cfg.max_seconds > 0.0 && start.elapsed().as_secs_f64() >= cfg.max_seconds {
             break Stop::MaxSeconds;
+        }
+        if cfg.budget && pass >= pass_budget(tree.nodes.len()) {
+            break Stop::PassBudget;
         }
         if cfg.anneal && temp < t_min {
             break Stop::Converged;

@@ -47,6 +47,9 @@ pub enum Stop {
     MaxPasses,
     /// Stopped by the time cap: the result depends on machine speed (not reproducible bit for bit).
     MaxSeconds,
+    /// Stopped by the default pass budget derived from the tree size (issue 15: pathological
+    /// scenes must not run unbounded); deterministic, unlike `MaxSeconds`.
+    PassBudget,
 }
 
 impl Stop {
@@ -55,6 +58,7 @@ impl Stop {
             Stop::Converged => "converged",
             Stop::MaxPasses => "max_passes",
             Stop::MaxSeconds => "max_seconds",
+            Stop::PassBudget => "pass_budget",
         }
     }
 }

@@ -452,6 +452,7 @@ impl ResolvedOptimizer {
             pr: self.u32("pr"),
             max_passes: self.u32("max_passes"),
             max_seconds: self.f64("max_seconds"),
+            budget: self.params.get("budget").map(String::as_str) != Some("off"),
             keep_best: self.flag("keep_best"),
             seed: self.u32("seed") as u64,
             cost: self.cost,
@@ -464,6 +465,7 @@ impl ResolvedOptimizer {
             cooling: self.f64("cooling"),
             max_passes: self.u32("max_passes"),
             max_seconds: self.f64("max_seconds"),
+            budget: self.params.get("budget").map(String::as_str) != Some("off"),
             keep_best: self.flag("keep_best"),
             seed: self.u32("seed") as u64,
             cost: self.cost,
@@ -503,6 +505,15 @@ const MAX_SECONDS: ParamSpec = ParamSpec {
     kind: Kind::NonNegativeFloat,
     about:
         "stop after this many seconds (0 = no limit); a run stopped by it depends on machine speed",
+    in_label: false,
+};
+
+const BUDGET: ParamSpec = ParamSpec {
+    name: "budget",
+    default: "auto",
+    kind: Kind::Choice(&["auto", "off"]),
+    about: "auto: stop after a pass budget derived from the tree size (ibo: 25 updates per inner node; \
+            kensler: 16 log2(nodes) + 64 passes), optimize_stop = pass_budget; off: no budget",
     in_label: false,
 };
 
@@ -615,6 +626,7 @@ impl Registry {
                     },
                     MAX_PASSES,
                     MAX_SECONDS,
+                    BUDGET,
                     KEEP_BEST,
                     SEED,
                 ],
@@ -625,7 +637,7 @@ impl Registry {
                 name: "kensler-hc",
                 about: "tree rotations, hill climbing: apply the best improving rotation at each node until a pass \
                         finds none (Kensler 2008)",
-                params: vec![MAX_PASSES, MAX_SECONDS, KEEP_BEST, SEED],
+                params: vec![MAX_PASSES, MAX_SECONDS, BUDGET, KEEP_BEST, SEED],
                 run: |bvh, r| bvhlab_opt::kensler::optimize(bvh, &r.kensler_config(false)),
                 finish: None,
             },
@@ -651,6 +663,7 @@ impl Registry {
                     },
                     ParamSpec { default: "100", ..MAX_PASSES },
                     ParamSpec { default: "600", ..MAX_SECONDS },
+                    BUDGET,
                     KEEP_BEST,
                     SEED,
                 ],

@@ -306,7 +306,7 @@ pub const PRECISION_LOSS_WARN: f64 = 0.01;
 pub fn precision_warning(scene: &str, loss: f64) -> Option<String> {
     (loss > PRECISION_LOSS_WARN).then(|| {
         format!(
-            "{scene}: f32 precision loss: at the largest coordinate, f32 values are {:.3} median edge lengths apart              (warning above {PRECISION_LOSS_WARN}); vertices are rounded visibly, so costs and hits are those of the              rounded scene (move it nearer the origin)",
+            "{scene}: f32 precision loss: at the largest coordinate, f32 values are {:.3} median edge lengths apart (warning above {PRECISION_LOSS_WARN}); vertices are rounded visibly, so costs and hits are those of the rounded scene (move it nearer the origin)",
             loss
         )
     })
