@@ -703,7 +703,7 @@ impl Registry {
                         name: "centroid_stop",
                         default: "split-axis",
                         kind: Kind::Choice(&["split-axis", "any-axis"]),
-                        about: "stop when the centroid extent is < 1e-7 along the split axis (default) or along any \
+                        about: "stop when the centroid extent is < 1e-7 of the node box along the split axis (default) or along any \
                                 axis (the thesis' literal rule, 3.1.1; reproduces its BIN column)",
                         in_label: false,
                     },

@@ -1546,7 +1546,8 @@ fn random_ray_set(scene: &Scene, count: u32, seed: u64) -> Vec<bvhlab_trace::Ray
     let r = scene
         .triangles
         .iter()
-        .map(|t| (t.bounds().center() - c).length())
+        // f64: squared f32 lengths underflow below 1e-19 and overflow above 1e19 (issue 15).
+        .map(|t| (t.bounds().center().as_dvec3() - c.as_dvec3()).length() as f32)
         .fold(0.0f32, f32::max);
     bvhlab_trace::random_rays(&bounds, r, count as usize, seed)
 }

@@ -34,7 +34,8 @@ pub const OPTIMIZE_VERSION: u32 = 2;
 /// 3: optional layout input (its own traversal, bvh2 anchor timed alternately, extra hits/tests).
 /// 4: ray-triangle t in f64 (far rays could disagree with brute force in f32); axis-parallel rays
 ///    on a box plane are inside the slab (were culled).
-pub const MEASURE_VERSION: u32 = 4;
+/// 5: ray sets at any scale: camera and ray lengths in f64 (1e-30 and 1e30 scenes got no hits).
+pub const MEASURE_VERSION: u32 = 5;
 pub const FOCUS_VERSION: u32 = 1;
 pub const LAYOUT_VERSION: u32 = 1;
 

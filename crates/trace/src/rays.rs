@@ -34,7 +34,8 @@ fn centre_radius(bounds: &Aabb) -> (Vec3, f32) {
         return (Vec3::ZERO, 1.0);
     }
     let c = bounds.center();
-    let r = 0.5 * bounds.extent().length();
+    // f64: squared f32 extents underflow below 1e-19 and overflow above 1e19 (issue 15).
+    let r = (0.5 * bounds.extent_f64().length()) as f32;
     let r = if r.is_finite() && r > 0.0 { r } else { 1.0 };
     (c, r)
 }
@@ -81,7 +82,10 @@ impl Camera {
     /// Orthonormal camera frame (forward, right, true up); falls back to axis frames when the
     /// camera's vectors are degenerate (eye == target, or up parallel to the view direction).
     fn frame(&self) -> (Vec3, Vec3, Vec3) {
-        let fwd = (self.target - self.eye).normalize_or(Vec3::NEG_Z);
+        // Normalized in f64: the f32 squared length of a 1e-30-sized view vector underflows to 0.
+        let fwd = (self.target.as_dvec3() - self.eye.as_dvec3())
+            .normalize_or(glam::DVec3::NEG_Z)
+            .as_vec3();
         let mut right = fwd.cross(self.up).normalize_or_zero();
         if right == Vec3::ZERO {
             let alt = if fwd.y.abs() < 0.9 { Vec3::Y } else { Vec3::Z };
@@ -138,12 +142,12 @@ pub fn shadow_rays(primary: &[Ray], hit_t: &[f32], light: Vec3) -> Vec<Ray> {
             continue;
         }
         let p = r.origin + r.dir * t;
-        let scale = (light - p).length();
+        let scale = (light - p).as_dvec3().length() as f32;
         let nudge = (SHADOW_NUDGE * scale).max(1e-6 * p.abs().max_element());
         let back = r.dir.normalize_or_zero();
         let origin = p - back * nudge;
         let to_light = light - origin;
-        let dist = to_light.length();
+        let dist = to_light.as_dvec3().length() as f32;
         if !(dist.is_finite() && dist > 0.0 && origin.is_finite()) {
             continue;
         }
@@ -203,7 +207,7 @@ pub fn random_rays(bounds: &Aabb, centroid_radius: f32, count: usize, seed: u64)
                 let p0 = c + sphere_point(&mut rng, b0) * r;
                 let p1 = c + sphere_point(&mut rng, b1) * r;
                 let d = p1 - p0;
-                let len = d.length();
+                let len = d.as_dvec3().length() as f32; // f64: no under/overflow of the squares
                 if len > min_len && len.is_finite() {
                     return Ray {
                         origin: p0,
