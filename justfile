@@ -65,6 +65,11 @@ ci:
 fuzz TARGET="soup" SECONDS="60":
     bash scripts/fuzz.sh {{TARGET}} {{SECONDS}}
 
+# Scale invariance (issue 15) at N triangles per scene, release build: every method at 1e-30..1e30 and
+# moved by 10^k extents, on the generated and (thinned) shared scenes; prints the cells above 1 %.
+scale N="30000":
+    SCALE_N={{N}} cargo test --release -p bvhlab-pipeline --test scale -- --nocapture --test-threads=1
+
 # Every builder, compaction and layout vs brute force on the shared scenes with 10^5 random rays.
 oracle-large *ARGS="":
     cargo run --release -p bvhlab-pipeline --example oracle_large -- {{ARGS}}

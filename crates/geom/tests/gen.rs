@@ -371,7 +371,7 @@ fn stress_scenes_have_their_property() {
     }
     assert_eq!(
         canonical_spec("scale:s=1e30").unwrap(),
-        "scale:n=2000,s=1e30,seed=1"
+        "scale:n=2000,s=1e30,seed=1,t=0"
     );
     assert_eq!(canonical_spec("staircase").unwrap(), "staircase:n=100000");
 }

@@ -368,7 +368,7 @@ fn decimal_scaling_keeps_sah_generated() {
 }
 
 /// The shared scenes (../shared/scenes), each thinned to about 3000 triangles (every k-th, so the
-/// debug build stays quick; `just scale` runs them whole). Skips when ../shared is absent.
+/// debug build stays quick; `just scale` runs them at 30k triangles). Skips when ../shared is absent.
 #[test]
 fn decimal_scaling_keeps_sah_shared() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes");
