@@ -436,6 +436,7 @@ fn methods_lists_builders_and_encoders() {
         "incremental",
         "ibo",
         "measure=[comb]",
+        "schedule=[bittner]",
         "kensler-sa",
         "layouts",
         "qbvh",

@@ -447,6 +447,11 @@ impl ResolvedOptimizer {
                 .get("measure")
                 .and_then(|m| bvhlab_opt::ibo::Measure::parse(m))
                 .unwrap_or(bvhlab_opt::ibo::Measure::Comb),
+            schedule: self
+                .params
+                .get("schedule")
+                .and_then(|s| bvhlab_opt::ibo::Schedule::parse(s))
+                .unwrap_or_default(),
             frac: self.f64("ibo_frac") as f32,
             pt: self.u32("pt"),
             pr: self.u32("pr"),
@@ -525,11 +530,17 @@ const SEED: ParamSpec = ParamSpec {
     in_label: false,
 };
 
-/// ibo: p_R <= p_T (Bittner 2013 section 3.5).
+/// ibo: p_R <= p_T (Bittner 2013 section 3.5); `schedule = "thesis"` returns the last tree
+/// (thesis 3.4.3, 5.2.1) unless `keep_best` is given.
 fn ibo_finish(
-    _raw: &BTreeMap<String, String>,
+    raw: &BTreeMap<String, String>,
     params: &mut BTreeMap<String, String>,
 ) -> Result<(), String> {
+    if params.get("schedule").map(String::as_str) == Some("thesis")
+        && !raw.contains_key("keep_best")
+    {
+        params.insert("keep_best".into(), "false".into());
+    }
     let get = |k: &str| typed::<u32>(params, k);
     if get("pr") > get("pt") {
         return Err(format!(
@@ -600,17 +611,31 @@ impl Registry {
                         in_label: false,
                     },
                     ParamSpec {
+                        name: "schedule",
+                        default: "bittner",
+                        kind: Kind::Choice(&["bittner", "thesis"]),
+                        about: "termination: bittner = stop after p_T passes without improving the best cost, \
+                                random sampling after p_R of them (Bittner 2013 3.5); thesis = check the cost \
+                                every p_T passes against the previous check, at the first check without \
+                                improvement switch to random sampling checked every p_R passes, stop at its \
+                                first check without improvement and return the last tree (keep_best=false \
+                                unless given; Frantal 2019 3.4.3, what tables 20 and 38 measure)",
+                        in_label: false,
+                    },
+                    ParamSpec {
                         name: "pt",
                         default: "10",
                         kind: Kind::UInt { min: 1, max: 1 << 20 },
-                        about: "stop after p_T passes without improving the cost (Bittner 2013 3.5)",
+                        about: "bittner: stop after p_T passes without improving the cost (Bittner 2013 3.5); \
+                                thesis: passes between the cost checks of the measure stage",
                         in_label: false,
                     },
                     ParamSpec {
                         name: "pr",
                         default: "5",
                         kind: Kind::UInt { min: 0, max: 1 << 20 },
-                        about: "switch to random sampling after p_R passes without improvement (0: never)",
+                        about: "bittner: switch to random sampling after p_R passes without improvement; thesis: \
+                                passes between the checks of the random stage (0: no random sampling)",
                         in_label: false,
                     },
                     MAX_PASSES,
@@ -1140,6 +1165,15 @@ impl Registry {
     /// Optimizer label: `ibo comb`, plus parameters changed from their defaults.
     pub fn optimizer_label(&self, o: &ResolvedOptimizer) -> String {
         let mut parts = vec![o.optimizer.clone()];
+        // The thesis schedule returns the last tree unless told otherwise (ibo_finish).
+        let thesis = o.params.get("schedule").map(String::as_str) == Some("thesis");
+        let default_of = |spec: &ParamSpec| {
+            if thesis && spec.name == "keep_best" {
+                "false"
+            } else {
+                spec.default
+            }
+        };
         if let Ok(info) = self.optimizer(&o.optimizer) {
             for spec in &info.params {
                 let Some(v) = o.params.get(spec.name) else {
@@ -1147,7 +1181,7 @@ impl Registry {
                 };
                 if spec.in_label {
                     parts.push(v.clone());
-                } else if v != spec.default && !(spec.name == "pr" && v == "0") {
+                } else if v != default_of(spec) && !(spec.name == "pr" && v == "0") {
                     parts.push(format!("{}={v}", spec.name));
                 }
             }
@@ -1491,5 +1525,45 @@ mod tests {
                 "{k}={v}: {e}"
             );
         }
+    }
+
+    #[test]
+    fn ibo_schedule() {
+        let r = Registry::standard();
+        let cost = CostParams::default();
+        let bittner = r.resolve_optimizer("ibo", &raw(&[]), cost).unwrap();
+        assert_eq!(bittner.params["schedule"], "bittner");
+        assert_eq!(bittner.params["keep_best"], "true");
+        assert_eq!(
+            bittner.ibo_config().schedule,
+            bvhlab_opt::ibo::Schedule::Bittner
+        );
+        assert_eq!(r.optimizer_label(&bittner), "ibo comb");
+        // The thesis schedule returns the last tree unless keep_best is given.
+        let thesis = r
+            .resolve_optimizer("ibo", &raw(&[("schedule", "thesis")]), cost)
+            .unwrap();
+        assert_eq!(thesis.params["keep_best"], "false");
+        let cfg = thesis.ibo_config();
+        assert_eq!(
+            (cfg.schedule, cfg.keep_best),
+            (bvhlab_opt::ibo::Schedule::Thesis, false)
+        );
+        assert_eq!(r.optimizer_label(&thesis), "ibo comb schedule=thesis");
+        let best = r
+            .resolve_optimizer(
+                "ibo",
+                &raw(&[("schedule", "thesis"), ("keep_best", "true")]),
+                cost,
+            )
+            .unwrap();
+        assert!(best.ibo_config().keep_best);
+        assert_eq!(
+            r.optimizer_label(&best),
+            "ibo comb schedule=thesis keep_best=true"
+        );
+        assert!(r
+            .resolve_optimizer("ibo", &raw(&[("schedule", "frantal")]), cost)
+            .is_err());
     }
 }
