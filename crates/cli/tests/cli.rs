@@ -437,6 +437,7 @@ fn methods_lists_builders_and_encoders() {
         "ibo",
         "measure=[comb]",
         "schedule=[bittner]",
+        "frame=[centroids]",
         "kensler-sa",
         "layouts",
         "qbvh",

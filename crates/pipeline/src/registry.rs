@@ -690,8 +690,24 @@ impl Registry {
             BuilderInfo::top_down(
                 "spatial-median",
                 "split the largest axis at its middle (Kay and Kajiya 1986; thesis 3.2)",
-                vec![LEAF],
-                |b, c, _, r| bvhlab_build::spatial_median::build(b, c, &r.config()),
+                vec![
+                    LEAF,
+                    ParamSpec {
+                        name: "frame",
+                        default: "centroids",
+                        kind: Kind::Choice(&["centroids", "node"]),
+                        about: "box whose largest axis is halved: the node's centroid bounds (bvhlab's default: \
+                                only a plane inside them separates centroids) or the node's bounding box \
+                                (Kay and Kajiya 1986, the start tree of Bittner 2013 tables 3 and 5); an empty \
+                                side falls back to the object median",
+                        in_label: false,
+                    },
+                ],
+                |b, c, _, r| {
+                    use bvhlab_build::spatial_median::{build_in, Frame};
+                    let frame = r.params.get("frame").and_then(|f| Frame::parse(f)).unwrap_or_default();
+                    build_in(b, c, &r.config(), frame)
+                },
             ),
             BuilderInfo::top_down(
                 "sweep-sah",
@@ -1528,7 +1544,7 @@ mod tests {
     }
 
     #[test]
-    fn ibo_schedule() {
+    fn ibo_schedule_and_spatial_median_frame() {
         let r = Registry::standard();
         let cost = CostParams::default();
         let bittner = r.resolve_optimizer("ibo", &raw(&[]), cost).unwrap();
@@ -1564,6 +1580,17 @@ mod tests {
         );
         assert!(r
             .resolve_optimizer("ibo", &raw(&[("schedule", "frantal")]), cost)
+            .is_err());
+        // The spatial median's frame: centroids by default, node on request, in the key.
+        let c = r.resolve("spatial-median", &raw(&[]), cost).unwrap();
+        assert_eq!(c.key_params()["frame"], "centroids");
+        let n = r
+            .resolve("spatial-median", &raw(&[("frame", "node")]), cost)
+            .unwrap();
+        assert_eq!(n.key_params()["frame"], "node");
+        assert_eq!(r.label(&n), "spatial-median frame=node");
+        assert!(r
+            .resolve("sweep-sah", &raw(&[("frame", "node")]), cost)
             .is_err());
     }
 }
