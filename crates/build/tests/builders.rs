@@ -294,3 +294,58 @@ fn node_frame_median_splits_the_middle_of_the_node_box() {
         }
     }
 }
+
+/// Segments along x: every box, hence every node, has zero surface area, so a leaf and a split
+/// cost the same (0). The builders split such ties, as the SAH compaction keeps such subtrees.
+fn segment_boxes(n: usize) -> Vec<Aabb> {
+    (0..n)
+        .map(|i| {
+            let x = i as f32 * 0.01;
+            Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 0.005, 0.0, 0.0))
+        })
+        .collect()
+}
+
+#[test]
+fn sah_builders_and_the_compaction_decide_ties_alike() {
+    use bvhlab_bvh::collapse::collapse;
+    let leaves = |b: &bvhlab_bvh::Bvh| b.nodes.iter().filter(|n| n.is_leaf()).count();
+    let segs = segment_boxes(300);
+    // Zero-area input mixed into a normal scene: clusters of segments and points among boxes.
+    let mut mixed = random_boxes(2000, 0.05, 7);
+    for (i, s) in segment_boxes(400).into_iter().enumerate() {
+        let o = Vec3::splat((i / 50) as f32 * 0.1);
+        mixed.push(Aabb::new(s.min * 0.01 + o, s.max * 0.01 + o));
+    }
+    mixed.extend(point_boxes(50));
+    for (name, build) in BUILDERS.iter().skip(1) {
+        let centers = centers_of(&segs);
+        let cfg = TopDownConfig::default();
+        let bvh = build(&segs, &centers, &cfg);
+        assert_eq!(
+            max_leaf_size(&bvh),
+            2,
+            "{name}: a zero-area node is split down to the threshold"
+        );
+        for (scene, boxes) in [
+            ("segments", &segs),
+            ("mixed", &mixed),
+            ("flat", &flat_boxes(2000, 5)),
+        ] {
+            let centers = centers_of(boxes);
+            for leaf in [2, 4, 8] {
+                let cfg = TopDownConfig {
+                    leaf,
+                    ..Default::default()
+                };
+                let bvh = build(boxes, &centers, &cfg);
+                let c = collapse(&bvh, cfg.cost);
+                assert_eq!(
+                    (leaves(&c), c.nodes.len()),
+                    (leaves(&bvh), bvh.nodes.len()),
+                    "{name} on {scene} leaf={leaf}: compacting a fresh SAH tree changes nothing"
+                );
+            }
+        }
+    }
+}

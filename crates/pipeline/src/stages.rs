@@ -20,7 +20,8 @@ use std::path::PathBuf;
 pub const LOAD_VERSION: u32 = 1;
 pub const ENCODE_VERSION: u32 = 2;
 /// 2: bottom-up builders (lbvh, aac, ploc) and the reworked (parallel) binned SAH.
-pub const BUILD_VERSION: u32 = 2;
+/// 3: the SAH leaf test splits on equal costs (as the compaction keeps such subtrees).
+pub const BUILD_VERSION: u32 = 3;
 pub const COMPACT_VERSION: u32 = 1;
 pub const OPTIMIZE_VERSION: u32 = 1;
 /// 2: traversal keeps a popped node whose entry equals the best t within the slab margin (ties).
