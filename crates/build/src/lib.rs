@@ -63,11 +63,15 @@ impl TopDownConfig {
     }
     /// The SAH leaf-vs-split test of thesis eq. 2 and 3, multiplied through by SA(N) so that a node
     /// with zero surface area (all-point boxes) needs no division: leaf iff
-    /// `c_I * n <= c_T + c_I * (SA_L n_L + SA_R n_R) / SA_N`.
+    /// `c_I * n < c_T + c_I * (SA_L n_L + SA_R n_R) / SA_N`, i.e. only when the leaf is strictly
+    /// cheaper (thesis 2.2.2 and 2.3.1: "if the expected cost of a leaf is lower"). Equal costs
+    /// split, as the SAH compaction (`bvhlab_bvh::collapse`, thesis 3.4.4 / Bittner 3.6: collapse
+    /// when the leaf is lower) keeps such a subtree: one tie rule, so compacting a freshly built
+    /// tree changes nothing, also on zero-area (degenerate) nodes where both costs are 0.
     /// `split_sum` is `SA_L n_L + SA_R n_R` with the same (half-)area scale as `node_area`.
     #[inline]
     pub(crate) fn sah_prefers_leaf(&self, n: usize, node_area: f64, split_sum: f64) -> bool {
         let (c_t, c_i) = (self.cost.c_t as f64, self.cost.c_i as f64);
-        c_i * n as f64 * node_area <= c_t * node_area + c_i * split_sum
+        c_i * n as f64 * node_area < c_t * node_area + c_i * split_sum
     }
 }

@@ -1,21 +1,56 @@
 //! Spatial median (Kay and Kajiya 1986): split the largest-extent axis at its middle.
 //!
-//! The axis and the middle are taken from the node's *centroid* bounds, not its full bounds:
-//! primitives are assigned to a side by their centroid, so only a plane inside the centroid bounds
-//! can separate them. With node bounds, one large primitive can stretch the box so that every
-//! centroid falls on one side, forcing needless fallbacks. (The thesis' Bonsai mini-tree selection,
-//! section 3.3.2, likewise runs the spatial median "based on the centroids of the primitives".)
-//! If the middle still leaves one side empty (all centroids equal, or adjacent floats), the node is
-//! split at the object median, so construction always terminates.
+//! Two frames ([`Frame`]). `Centroids` (the default) takes the axis and the middle from the node's
+//! *centroid* bounds: primitives are assigned to a side by their centroid, so only a plane inside
+//! the centroid bounds can separate them; with node bounds, one large primitive can stretch the box
+//! so that every centroid falls on one side, forcing needless fallbacks. (The thesis' Bonsai
+//! mini-tree selection, section 3.3.2, likewise runs the spatial median "based on the centroids of
+//! the primitives".) `Node` is Kay and Kajiya's plane: the middle of the node's bounding box along
+//! its largest axis, which is the start tree of Bittner 2013 tables 3 and 5.
+//! In both frames, if the middle leaves one side empty (all centroids equal, adjacent floats, or
+//! with `Node` every centroid on one side of the box middle), the node is split at the object
+//! median along the same axis, so construction always terminates.
 use crate::primref::{make_refs, object_median, partition, PrimRef};
 use crate::topdown::{build_nodes, Range};
 use crate::TopDownConfig;
 use bvhlab_bvh::{Aabb, Bvh, Vec3};
 
+/// Whose bounding box the split plane halves.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Frame {
+    /// The bounds of the node's primitive centroids (bvhlab's default).
+    #[default]
+    Centroids,
+    /// The node's bounding box (Kay and Kajiya 1986; Bittner 2013's spatial median).
+    Node,
+}
+
+impl Frame {
+    pub fn parse(s: &str) -> Option<Frame> {
+        Some(match s {
+            "centroids" => Frame::Centroids,
+            "node" => Frame::Node,
+            _ => return None,
+        })
+    }
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Frame::Centroids => "centroids",
+            Frame::Node => "node",
+        }
+    }
+}
+
+/// The spatial median over the centroid bounds ([`Frame::Centroids`]).
 pub fn build(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> Bvh {
+    build_in(boxes, centers, cfg, Frame::Centroids)
+}
+
+/// The spatial median splitting the middle of `frame`'s box.
+pub fn build_in(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig, frame: Frame) -> Bvh {
     let (mut refs, root) = make_refs(boxes, centers);
     let max_leaf = cfg.max_leaf();
-    let nodes = build_nodes(refs.len(), root, |r| split(&mut refs, r, max_leaf));
+    let nodes = build_nodes(refs.len(), root, |r| split(&mut refs, r, max_leaf, frame));
     Bvh {
         nodes,
         prim_indices: refs.iter().map(|p| p.idx).collect(),
@@ -23,12 +58,16 @@ pub fn build(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> Bvh {
 }
 
 /// The split decision for one node: `None` makes a leaf (primitive threshold only, no SAH test).
-fn split(refs: &mut [PrimRef], r: &Range, max_leaf: usize) -> Option<(Range, Range)> {
+fn split(refs: &mut [PrimRef], r: &Range, max_leaf: usize, frame: Frame) -> Option<(Range, Range)> {
     if r.len() <= max_leaf {
         return None;
     }
-    let axis = r.cbounds.largest_axis();
-    let (lo, hi) = (r.cbounds.min[axis], r.cbounds.max[axis]);
+    let b = match frame {
+        Frame::Centroids => &r.cbounds,
+        Frame::Node => &r.bounds,
+    };
+    let axis = b.largest_axis();
+    let (lo, hi) = (b.min[axis], b.max[axis]);
     // Halves first: the same float as 0.5 (lo + hi) but no overflow near f32::MAX.
     let mid = 0.5 * lo + 0.5 * hi;
     let (left, right) = partition(refs, r, |p| p.c[axis] < mid);

@@ -1,7 +1,7 @@
 //! Structural validity, leaf sizes, SAH ordering and determinism of the three top-down builders.
 mod common;
 use bvhlab_build::{binned_sah, spatial_median, sweep_sah, TopDownConfig};
-use bvhlab_bvh::{metrics, validate, Aabb, CostParams};
+use bvhlab_bvh::{metrics, validate, Aabb, CostParams, Vec3};
 use common::*;
 
 fn scenes() -> Vec<(&'static str, Vec<Aabb>)> {
@@ -226,4 +226,126 @@ fn centroid_termination_rules_differ_on_flat_input() {
     let b = build_with_termination(&boxes, &centers, 16, &forced, AnyAxis);
     assert!(validate(&b, &boxes).is_ok());
     assert_eq!(max_leaf_size(&b), 1);
+}
+
+/// Primitive indices under node `n`.
+fn prims_under(bvh: &bvhlab_bvh::Bvh, n: u32, out: &mut Vec<u32>) {
+    let nd = &bvh.nodes[n as usize];
+    if nd.is_leaf() {
+        out.extend_from_slice(&bvh.prim_indices[nd.first as usize..(nd.first + nd.count) as usize]);
+    } else {
+        prims_under(bvh, nd.first, out);
+        prims_under(bvh, nd.first + 1, out);
+    }
+}
+
+#[test]
+fn node_frame_median_splits_the_middle_of_the_node_box() {
+    use spatial_median::{build_in, Frame};
+    // One long box (centroid x = 5) stretches the node box to x in [0, 10]: its middle 5 puts the
+    // centroids 1 and 4 left, 5 and 6 right; the centroid bounds [1, 6] have their middle at 3.5,
+    // which puts only 1 left.
+    let b = |lo: f32, hi: f32| Aabb::new(Vec3::new(lo, 0.0, 0.0), Vec3::new(hi, 1.0, 1.0));
+    let boxes = vec![b(0.0, 10.0), b(0.9, 1.1), b(3.9, 4.1), b(5.9, 6.1)];
+    let centers = centers_of(&boxes);
+    let cfg = TopDownConfig {
+        leaf: 1,
+        ..Default::default()
+    };
+    let left_prims = |bvh: &bvhlab_bvh::Bvh| {
+        let mut v = Vec::new();
+        prims_under(bvh, bvh.nodes[0].first, &mut v);
+        v.sort();
+        v
+    };
+    let node = build_in(&boxes, &centers, &cfg, Frame::Node);
+    let cent = build_in(&boxes, &centers, &cfg, Frame::Centroids);
+    assert_eq!(left_prims(&node), vec![1, 2]);
+    assert_eq!(left_prims(&cent), vec![1]);
+    assert_eq!(
+        cent,
+        spatial_median::build(&boxes, &centers, &cfg),
+        "centroids is the default"
+    );
+    // Everywhere: every inner node's children are the two sides of its box middle (centroid <
+    // middle goes left) along the box's largest axis, unless a side was empty (object median).
+    for (scene, boxes) in scenes() {
+        let centers = centers_of(&boxes);
+        for cfg in cfgs() {
+            let bvh = build_in(&boxes, &centers, &cfg, Frame::Node);
+            validate(&bvh, &boxes).unwrap_or_else(|e| panic!("{scene}: {e}"));
+            for nd in bvh.nodes.iter().filter(|n| !n.is_leaf()) {
+                let axis = nd.bounds.largest_axis();
+                let mid = 0.5 * (nd.bounds.min[axis] + nd.bounds.max[axis]);
+                let (mut l, mut r) = (Vec::new(), Vec::new());
+                prims_under(&bvh, nd.first, &mut l);
+                prims_under(&bvh, nd.first + 1, &mut r);
+                let left_of = |i: &u32| centers[*i as usize][axis] < mid;
+                let all_one_side =
+                    l.iter().chain(&r).all(left_of) || !l.iter().chain(&r).any(left_of);
+                if !all_one_side {
+                    assert!(
+                        l.iter().all(left_of) && !r.iter().any(left_of),
+                        "{scene} leaf={}",
+                        cfg.leaf
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Segments along x: every box, hence every node, has zero surface area, so a leaf and a split
+/// cost the same (0). The builders split such ties, as the SAH compaction keeps such subtrees.
+fn segment_boxes(n: usize) -> Vec<Aabb> {
+    (0..n)
+        .map(|i| {
+            let x = i as f32 * 0.01;
+            Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 0.005, 0.0, 0.0))
+        })
+        .collect()
+}
+
+#[test]
+fn sah_builders_and_the_compaction_decide_ties_alike() {
+    use bvhlab_bvh::collapse::collapse;
+    let leaves = |b: &bvhlab_bvh::Bvh| b.nodes.iter().filter(|n| n.is_leaf()).count();
+    let segs = segment_boxes(300);
+    // Zero-area input mixed into a normal scene: clusters of segments and points among boxes.
+    let mut mixed = random_boxes(2000, 0.05, 7);
+    for (i, s) in segment_boxes(400).into_iter().enumerate() {
+        let o = Vec3::splat((i / 50) as f32 * 0.1);
+        mixed.push(Aabb::new(s.min * 0.01 + o, s.max * 0.01 + o));
+    }
+    mixed.extend(point_boxes(50));
+    for (name, build) in BUILDERS.iter().skip(1) {
+        let centers = centers_of(&segs);
+        let cfg = TopDownConfig::default();
+        let bvh = build(&segs, &centers, &cfg);
+        assert_eq!(
+            max_leaf_size(&bvh),
+            2,
+            "{name}: a zero-area node is split down to the threshold"
+        );
+        for (scene, boxes) in [
+            ("segments", &segs),
+            ("mixed", &mixed),
+            ("flat", &flat_boxes(2000, 5)),
+        ] {
+            let centers = centers_of(boxes);
+            for leaf in [2, 4, 8] {
+                let cfg = TopDownConfig {
+                    leaf,
+                    ..Default::default()
+                };
+                let bvh = build(boxes, &centers, &cfg);
+                let c = collapse(&bvh, cfg.cost);
+                assert_eq!(
+                    (leaves(&c), c.nodes.len()),
+                    (leaves(&bvh), bvh.nodes.len()),
+                    "{name} on {scene} leaf={leaf}: compacting a fresh SAH tree changes nothing"
+                );
+            }
+        }
+    }
 }

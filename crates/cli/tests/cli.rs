@@ -436,6 +436,8 @@ fn methods_lists_builders_and_encoders() {
         "incremental",
         "ibo",
         "measure=[comb]",
+        "schedule=[bittner]",
+        "frame=[centroids]",
         "kensler-sa",
         "layouts",
         "qbvh",

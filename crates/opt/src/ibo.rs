@@ -36,15 +36,50 @@ impl Measure {
     }
 }
 
+/// When the run stops (and when it switches to random sampling).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Schedule {
+    /// Bittner 2013 3.4-3.5: one counter of passes since the best cost; random sampling after
+    /// `pr` of them, stop after `pt`.
+    #[default]
+    Bittner,
+    /// Frantal 2019 3.4.3: the cost is checked every `pt` passes against the previous check (the
+    /// first one against the input's cost); the first check without improvement ends the measure
+    /// stage, then a random-sampling stage is checked every `pr` passes the same way (its first
+    /// check compares with the check that ended the measure stage); the random stage's first check
+    /// without improvement ends the run. With `pr = 0` (or `measure = random`) there is one stage.
+    Thesis,
+}
+
+impl Schedule {
+    pub fn parse(s: &str) -> Option<Schedule> {
+        Some(match s {
+            "bittner" => Schedule::Bittner,
+            "thesis" => Schedule::Thesis,
+            _ => return None,
+        })
+    }
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Schedule::Bittner => "bittner",
+            Schedule::Thesis => "thesis",
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IboConfig {
     pub measure: Measure,
+    /// Termination rule (and stage switch) reading `pt` and `pr`.
+    pub schedule: Schedule,
     /// Fraction of the inner nodes updated per pass (k = 1% in Bittner 2013).
     pub frac: f32,
-    /// Stop after this many passes without improving the best cost (p_T = 10).
+    /// Bittner: stop after this many passes without improving the best cost (p_T = 10). Thesis:
+    /// the period of the measure stage's cost checks.
     pub pt: u32,
-    /// Switch from the measure to random sampling after this many passes without improvement
-    /// (p_R = 5, p_R <= p_T). 0 disables the switch.
+    /// Bittner: switch from the measure to random sampling after this many passes without
+    /// improvement (p_R = 5, p_R <= p_T). Thesis: the period of the random stage's checks. 0
+    /// disables random sampling (under both schedules).
     pub pr: u32,
     /// 0 = no limit.
     pub max_passes: u32,
@@ -52,7 +87,7 @@ pub struct IboConfig {
     pub max_seconds: f64,
     /// Stop after [`pass_budget`] passes (`Stop::PassBudget`) even without `max_passes`.
     pub budget: bool,
-    /// Return the best tree seen instead of the last (the thesis' oscillation, 5.2.1).
+    /// Return the best tree seen instead of the last (the thesis returned the last, 5.2.1).
     pub keep_best: bool,
     /// Seed of random sampling.
     pub seed: u64,
@@ -63,6 +98,7 @@ impl Default for IboConfig {
     fn default() -> Self {
         IboConfig {
             measure: Measure::Comb,
+            schedule: Schedule::Bittner,
             frac: 0.01,
             pt: 10,
             pr: 5,
@@ -95,7 +131,8 @@ pub fn pass_budget(inner: usize, k: usize) -> u32 {
 /// The root cannot be updated (it has no parent) and is never selected. After `pr` passes without
 /// improving the best cost the selection switches to random sampling for the rest of the run; after
 /// `pt` passes without improvement the run stops (one counter for both, Bittner 3.5; it is not reset
-/// by the switch). The cost is recomputed exactly after every pass by a linear sweep over the inner
+/// by the switch). With [`Schedule::Thesis`] the stages end at periodic checks instead (see
+/// there; one counter per stage, reset at the switch). The cost is recomputed exactly after every pass by a linear sweep over the inner
 /// nodes (node slots keep their role, so the inner nodes are a fixed index set): the leaf term of
 /// eq. 2 and the root box never change when whole leaves move.
 pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
@@ -127,6 +164,9 @@ pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
     let mut dirty_overflow = false; // more changes than nodes since the copy: copy everything
     let mut since_best = 0u32;
     let mut random_phase = cfg.measure == Measure::Random;
+    // Thesis schedule: passes since the stage's last check, and the cost at that check.
+    let mut since_check = 0u32;
+    let mut last_check = c0;
     let mut pass = 0u32;
     let stop = loop {
         pass += 1;
@@ -193,11 +233,33 @@ pub fn optimize(bvh: &Bvh, cfg: &IboConfig) -> Optimized {
                 dirty_overflow = true;
             }
         }
-        if since_best >= cfg.pt {
-            break crate::Stop::Converged;
-        }
-        if !random_phase && cfg.pr > 0 && since_best >= cfg.pr {
-            random_phase = true;
+        match cfg.schedule {
+            Schedule::Bittner => {
+                if since_best >= cfg.pt {
+                    break crate::Stop::Converged;
+                }
+                if !random_phase && cfg.pr > 0 && since_best >= cfg.pr {
+                    random_phase = true;
+                }
+            }
+            Schedule::Thesis => {
+                // The measure stage (or a measure=random run) is checked every p_T passes, the
+                // random stage after it every p_R passes.
+                since_check += 1;
+                let second_stage = random_phase && cfg.measure != Measure::Random;
+                let period = if second_stage { cfg.pr } else { cfg.pt };
+                if since_check >= period.max(1) {
+                    since_check = 0;
+                    let improved = c < last_check;
+                    last_check = c;
+                    if !improved {
+                        if random_phase || cfg.pr == 0 {
+                            break crate::Stop::Converged;
+                        }
+                        random_phase = true;
+                    }
+                }
+            }
         }
         if cfg.max_passes > 0 && pass >= cfg.max_passes {
             break crate::Stop::MaxPasses;

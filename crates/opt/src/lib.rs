@@ -41,7 +41,8 @@ pub struct PassRecord {
 /// Why an optimizer stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Stop {
-    /// The method's own termination (ibo: p_T / p_R passes without improvement; hill climbing: a
+    /// The method's own termination (ibo: p_T / p_R passes without improvement, or the thesis
+    /// schedule's check without improvement in its last stage; hill climbing: a
     /// pass without an improving rotation; annealing: the schedule ended).
     Converged,
     MaxPasses,

@@ -244,3 +244,60 @@ fn measures_stay_finite_above_degenerate_leaves() {
     let want = t.bounds(1).area() / q.area();
     assert!((measure_value(&t, 1, Measure::Min) - want).abs() <= 1e-5 * want);
 }
+
+/// The thesis' termination (Frantal 3.4.3), replayed from a run's trace: the cost is checked every
+/// p_T passes against the previous check; the first check without improvement switches to random
+/// sampling, checked every p_R passes; its first check without improvement ends the run, which
+/// returns the last tree.
+#[test]
+fn thesis_schedule_checks_every_pt_passes_and_returns_the_last_tree() {
+    use bvhlab_opt::ibo::Schedule;
+    let scene = load_scene("gen:city:blocks=5").unwrap();
+    let median = build(&scene, true, 1);
+    for (pt, pr) in [(10, 5), (3, 2), (4, 0)] {
+        let cfg = IboConfig { schedule: Schedule::Thesis, keep_best: false, pt, pr, ..Default::default() };
+        let o = optimize(&median, &cfg);
+        let ctx = format!("pt={pt} pr={pr}");
+        assert_eq!(o.stop, Stop::Converged, "{ctx}");
+        let last = o.trace.len() as u32 - 1;
+        assert_eq!(o.returned_pass, last, "{ctx}: the last tree");
+        assert!((o.trace[last as usize].sah_cost - cost(&o.bvh)).abs() <= 1e-6 * cost(&o.bvh), "{ctx}");
+        check_hits(&ctx, &o.bvh, &scene);
+        // Replay: where must the stage switch and the run end, given the recorded costs?
+        let (mut prev, mut random, mut since, mut end, mut switch) = (o.trace[0].sah_cost, false, 0, None, None);
+        for r in &o.trace[1..] {
+            since += 1;
+            if since == if random { pr } else { pt } {
+                since = 0;
+                let improved = r.sah_cost < prev;
+                prev = r.sah_cost;
+                if !improved {
+                    if random || pr == 0 {
+                        end = Some(r.pass);
+                        break;
+                    }
+                    random = true;
+                    switch = Some(r.pass);
+                }
+            }
+        }
+        assert_eq!(end, Some(last), "{ctx}: stops at the first check without improvement of the last stage");
+        let first_random = o.trace.iter().find(|r| r.phase == "random").map(|r| r.pass);
+        assert_eq!(first_random, switch.map(|p| p + 1), "{ctx}: random sampling after the measure stage");
+        if pr == 0 {
+            assert_eq!(first_random, None, "{ctx}");
+        } else {
+            // The measure stage lasts a multiple of p_T passes, the random stage one of p_R.
+            let s = switch.unwrap();
+            assert_eq!((s % pt, (last - s) % pr), (0, 0), "{ctx}");
+        }
+        // The input's cost was improved at the first check (the spatial median is a bad start).
+        assert!(o.trace[pt as usize].sah_cost < o.trace[0].sah_cost, "{ctx}");
+    }
+    // keep_best applies to the thesis schedule too: the best pass's tree, never costlier than the last.
+    let cfg = IboConfig { schedule: Schedule::Thesis, keep_best: true, ..Default::default() };
+    let (best, lastt) = (optimize(&median, &cfg), optimize(&median, &IboConfig { keep_best: false, ..cfg }));
+    let costs = |o: &bvhlab_opt::Optimized| o.trace.iter().map(|r| r.sah_cost).collect::<Vec<_>>();
+    assert_eq!(costs(&best), costs(&lastt));
+    assert!(cost(&best.bvh) <= cost(&lastt.bvh));
+}

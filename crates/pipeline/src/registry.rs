@@ -447,6 +447,11 @@ impl ResolvedOptimizer {
                 .get("measure")
                 .and_then(|m| bvhlab_opt::ibo::Measure::parse(m))
                 .unwrap_or(bvhlab_opt::ibo::Measure::Comb),
+            schedule: self
+                .params
+                .get("schedule")
+                .and_then(|s| bvhlab_opt::ibo::Schedule::parse(s))
+                .unwrap_or_default(),
             frac: self.f64("ibo_frac") as f32,
             pt: self.u32("pt"),
             pr: self.u32("pr"),
@@ -536,11 +541,17 @@ const SEED: ParamSpec = ParamSpec {
     in_label: false,
 };
 
-/// ibo: p_R <= p_T (Bittner 2013 section 3.5).
+/// ibo: p_R <= p_T (Bittner 2013 section 3.5); `schedule = "thesis"` returns the last tree
+/// (thesis 3.4.3, 5.2.1) unless `keep_best` is given.
 fn ibo_finish(
-    _raw: &BTreeMap<String, String>,
+    raw: &BTreeMap<String, String>,
     params: &mut BTreeMap<String, String>,
 ) -> Result<(), String> {
+    if params.get("schedule").map(String::as_str) == Some("thesis")
+        && !raw.contains_key("keep_best")
+    {
+        params.insert("keep_best".into(), "false".into());
+    }
     let get = |k: &str| typed::<u32>(params, k);
     if get("pr") > get("pt") {
         return Err(format!(
@@ -611,17 +622,31 @@ impl Registry {
                         in_label: false,
                     },
                     ParamSpec {
+                        name: "schedule",
+                        default: "bittner",
+                        kind: Kind::Choice(&["bittner", "thesis"]),
+                        about: "termination: bittner = stop after p_T passes without improving the best cost, \
+                                random sampling after p_R of them (Bittner 2013 3.5); thesis = check the cost \
+                                every p_T passes against the previous check, at the first check without \
+                                improvement switch to random sampling checked every p_R passes, stop at its \
+                                first check without improvement and return the last tree (keep_best=false \
+                                unless given; Frantal 2019 3.4.3, what tables 20 and 38 measure)",
+                        in_label: false,
+                    },
+                    ParamSpec {
                         name: "pt",
                         default: "10",
                         kind: Kind::UInt { min: 1, max: 1 << 20 },
-                        about: "stop after p_T passes without improving the cost (Bittner 2013 3.5)",
+                        about: "bittner: stop after p_T passes without improving the cost (Bittner 2013 3.5); \
+                                thesis: passes between the cost checks of the measure stage",
                         in_label: false,
                     },
                     ParamSpec {
                         name: "pr",
                         default: "5",
                         kind: Kind::UInt { min: 0, max: 1 << 20 },
-                        about: "switch to random sampling after p_R passes without improvement (0: never)",
+                        about: "bittner: switch to random sampling after p_R passes without improvement; thesis: \
+                                passes between the checks of the random stage (0: no random sampling)",
                         in_label: false,
                     },
                     MAX_PASSES,
@@ -678,8 +703,24 @@ impl Registry {
             BuilderInfo::top_down(
                 "spatial-median",
                 "split the largest axis at its middle (Kay and Kajiya 1986; thesis 3.2)",
-                vec![LEAF],
-                |b, c, _, r| bvhlab_build::spatial_median::build(b, c, &r.config()),
+                vec![
+                    LEAF,
+                    ParamSpec {
+                        name: "frame",
+                        default: "centroids",
+                        kind: Kind::Choice(&["centroids", "node"]),
+                        about: "box whose largest axis is halved: the node's centroid bounds (bvhlab's default: \
+                                only a plane inside them separates centroids) or the node's bounding box \
+                                (Kay and Kajiya 1986, the start tree of Bittner 2013 tables 3 and 5); an empty \
+                                side falls back to the object median",
+                        in_label: false,
+                    },
+                ],
+                |b, c, _, r| {
+                    use bvhlab_build::spatial_median::{build_in, Frame};
+                    let frame = r.params.get("frame").and_then(|f| Frame::parse(f)).unwrap_or_default();
+                    build_in(b, c, &r.config(), frame)
+                },
             ),
             BuilderInfo::top_down(
                 "sweep-sah",
@@ -1153,6 +1194,15 @@ impl Registry {
     /// Optimizer label: `ibo comb`, plus parameters changed from their defaults.
     pub fn optimizer_label(&self, o: &ResolvedOptimizer) -> String {
         let mut parts = vec![o.optimizer.clone()];
+        // The thesis schedule returns the last tree unless told otherwise (ibo_finish).
+        let thesis = o.params.get("schedule").map(String::as_str) == Some("thesis");
+        let default_of = |spec: &ParamSpec| {
+            if thesis && spec.name == "keep_best" {
+                "false"
+            } else {
+                spec.default
+            }
+        };
         if let Ok(info) = self.optimizer(&o.optimizer) {
             for spec in &info.params {
                 let Some(v) = o.params.get(spec.name) else {
@@ -1160,7 +1210,7 @@ impl Registry {
                 };
                 if spec.in_label {
                     parts.push(v.clone());
-                } else if v != spec.default && !(spec.name == "pr" && v == "0") {
+                } else if v != default_of(spec) && !(spec.name == "pr" && v == "0") {
                     parts.push(format!("{}={v}", spec.name));
                 }
             }
@@ -1504,5 +1554,56 @@ mod tests {
                 "{k}={v}: {e}"
             );
         }
+    }
+
+    #[test]
+    fn ibo_schedule_and_spatial_median_frame() {
+        let r = Registry::standard();
+        let cost = CostParams::default();
+        let bittner = r.resolve_optimizer("ibo", &raw(&[]), cost).unwrap();
+        assert_eq!(bittner.params["schedule"], "bittner");
+        assert_eq!(bittner.params["keep_best"], "true");
+        assert_eq!(
+            bittner.ibo_config().schedule,
+            bvhlab_opt::ibo::Schedule::Bittner
+        );
+        assert_eq!(r.optimizer_label(&bittner), "ibo comb");
+        // The thesis schedule returns the last tree unless keep_best is given.
+        let thesis = r
+            .resolve_optimizer("ibo", &raw(&[("schedule", "thesis")]), cost)
+            .unwrap();
+        assert_eq!(thesis.params["keep_best"], "false");
+        let cfg = thesis.ibo_config();
+        assert_eq!(
+            (cfg.schedule, cfg.keep_best),
+            (bvhlab_opt::ibo::Schedule::Thesis, false)
+        );
+        assert_eq!(r.optimizer_label(&thesis), "ibo comb schedule=thesis");
+        let best = r
+            .resolve_optimizer(
+                "ibo",
+                &raw(&[("schedule", "thesis"), ("keep_best", "true")]),
+                cost,
+            )
+            .unwrap();
+        assert!(best.ibo_config().keep_best);
+        assert_eq!(
+            r.optimizer_label(&best),
+            "ibo comb schedule=thesis keep_best=true"
+        );
+        assert!(r
+            .resolve_optimizer("ibo", &raw(&[("schedule", "frantal")]), cost)
+            .is_err());
+        // The spatial median's frame: centroids by default, node on request, in the key.
+        let c = r.resolve("spatial-median", &raw(&[]), cost).unwrap();
+        assert_eq!(c.key_params()["frame"], "centroids");
+        let n = r
+            .resolve("spatial-median", &raw(&[("frame", "node")]), cost)
+            .unwrap();
+        assert_eq!(n.key_params()["frame"], "node");
+        assert_eq!(r.label(&n), "spatial-median frame=node");
+        assert!(r
+            .resolve("sweep-sah", &raw(&[("frame", "node")]), cost)
+            .is_err());
     }
 }

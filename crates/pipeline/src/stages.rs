@@ -23,8 +23,9 @@ pub const LOAD_VERSION: u32 = 2;
 pub const ENCODE_VERSION: u32 = 3;
 /// 2: bottom-up builders (lbvh, aac, ploc) and the reworked (parallel) binned SAH.
 /// 3: scale-free costs (issue 15): SAH areas and costs in f64, binned SAH bins in f64 and its
-///    "centroids too close" threshold relative to the scene extent, PLOC/AAC distances of boxes
-///    prescaled by a power of two.
+///    "centroids too close" threshold relative to the node box, PLOC/AAC distances of boxes
+///    prescaled by a power of two; the SAH leaf test splits on equal costs (as the compaction
+///    keeps such subtrees).
 pub const BUILD_VERSION: u32 = 3;
 /// 2: areas of boxes spanning more than the f32 range (issue 15).
 pub const COMPACT_VERSION: u32 = 2;

@@ -185,9 +185,11 @@ fn reference_section(h: &mut String, p: &Page) {
          the EMC-64-var rows of table 25 are ratios emc64-var / morton of the same builder and parameters, \
          in percent (build time = encode + build + compaction). \
          BP0/BP1/BP2 = bonsai n=512 / n=512 prune t=0.1 / n=4096 prune t=0.01; INC = incremental + collapse. \
-         Tables 38 and 20: sweep-sah leaf=1, binned-sah (BIN), incremental, each + ibo (comb) + collapse; table 20 \
+         Tables 38 and 20: sweep-sah leaf=1, binned-sah (BIN), incremental, each + ibo (comb, schedule=thesis, the \
+         last tree) + collapse; table 20 \
          divides by the table-10 chain of the same method. Bittner 2013 table 2 (scenes matched by triangle count \
-         in thousands): sweep-sah leaf=1 + collapse without optimizer (SAH build) or with ibo random/comb, \
+         in thousands): sweep-sah leaf=1 + collapse without optimizer (SAH build) or with ibo random/comb \
+         (schedule=bittner), \
          kensler-hc/-sa; cost before, ocost after compaction. \
          Difference = (ours &minus; paper) / paper; flagged when |difference| &gt; 3%.</p>\n",
     );
