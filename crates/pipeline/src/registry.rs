@@ -458,6 +458,7 @@ impl ResolvedOptimizer {
             max_passes: self.u32("max_passes"),
             max_seconds: self.f64("max_seconds"),
             budget: self.params.get("budget").map(String::as_str) != Some("off"),
+            frac_of_all: self.params.get("ibo_nodes").map(String::as_str) == Some("all"),
             keep_best: self.flag("keep_best"),
             seed: self.u32("seed") as u64,
             cost: self.cost,
@@ -547,10 +548,15 @@ fn ibo_finish(
     raw: &BTreeMap<String, String>,
     params: &mut BTreeMap<String, String>,
 ) -> Result<(), String> {
-    if params.get("schedule").map(String::as_str) == Some("thesis")
-        && !raw.contains_key("keep_best")
-    {
-        params.insert("keep_best".into(), "false".into());
+    if params.get("schedule").map(String::as_str) == Some("thesis") {
+        // The thesis' run as a whole (3.4.3, 5.2.1): the last tree, and k = 1% of all nodes;
+        // either can still be set explicitly.
+        if !raw.contains_key("keep_best") {
+            params.insert("keep_best".into(), "false".into());
+        }
+        if !raw.contains_key("ibo_nodes") {
+            params.insert("ibo_nodes".into(), "all".into());
+        }
     }
     let get = |k: &str| typed::<u32>(params, k);
     if get("pr") > get("pt") {
@@ -618,7 +624,15 @@ impl Registry {
                         name: "ibo_frac",
                         default: "0.01",
                         kind: Kind::PositiveFloat,
-                        about: "fraction of the inner nodes updated per pass (k = 1%)",
+                        about: "fraction of the nodes updated per pass (k = 1%; which nodes it counts: ibo_nodes)",
+                        in_label: false,
+                    },
+                    ParamSpec {
+                        name: "ibo_nodes",
+                        default: "inner",
+                        kind: Kind::Choice(&["inner", "all"]),
+                        about: "what ibo_frac counts: inner nodes (Bittner 2013 fig. 8, \"1% of inner nodes\") or all \
+                                nodes (thesis 3.4.3, \"1% of nodes\", of which only inner ones are updated)",
                         in_label: false,
                     },
                     ParamSpec {
@@ -1194,11 +1208,14 @@ impl Registry {
     /// Optimizer label: `ibo comb`, plus parameters changed from their defaults.
     pub fn optimizer_label(&self, o: &ResolvedOptimizer) -> String {
         let mut parts = vec![o.optimizer.clone()];
-        // The thesis schedule returns the last tree unless told otherwise (ibo_finish).
+        // The thesis schedule returns the last tree and counts all nodes unless told otherwise
+        // (ibo_finish).
         let thesis = o.params.get("schedule").map(String::as_str) == Some("thesis");
         let default_of = |spec: &ParamSpec| {
             if thesis && spec.name == "keep_best" {
                 "false"
+            } else if thesis && spec.name == "ibo_nodes" {
+                "all"
             } else {
                 spec.default
             }
@@ -1573,6 +1590,14 @@ mod tests {
             .resolve_optimizer("ibo", &raw(&[("schedule", "thesis")]), cost)
             .unwrap();
         assert_eq!(thesis.params["keep_best"], "false");
+        // ... and counts k over all nodes (thesis 3.4.3) unless ibo_nodes is given.
+        assert_eq!(thesis.params["ibo_nodes"], "all");
+        assert!(thesis.ibo_config().frac_of_all);
+        assert!(!bittner.ibo_config().frac_of_all);
+        let inner = r
+            .resolve_optimizer("ibo", &raw(&[("schedule", "thesis"), ("ibo_nodes", "inner")]), cost)
+            .unwrap();
+        assert!(!inner.ibo_config().frac_of_all);
         let cfg = thesis.ibo_config();
         assert_eq!(
             (cfg.schedule, cfg.keep_best),
