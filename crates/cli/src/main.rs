@@ -58,6 +58,10 @@ enum Cmd {
         /// With --plan / --status: print the nodes / chains as one JSON document.
         #[arg(long)]
         json: bool,
+        /// Most configurations (scene x chain grid point x ray set) the experiment may expand to;
+        /// a larger grid is refused (exit 2) before anything is expanded.
+        #[arg(long, value_name = "N", default_value_t = bvhlab_pipeline::experiment::DEFAULT_MAX_CONFIGS)]
+        max_configs: u64,
     },
     /// Write (and with --submit submit) a Slurm job array that runs the experiment's shards against
     /// one shared cache, plus a report job that runs after the array (afterany).
@@ -97,6 +101,10 @@ enum Cmd {
         /// Submit with sbatch (otherwise only write the scripts) and print the job ids.
         #[arg(long)]
         submit: bool,
+        /// Most configurations the experiment may expand to (see `sweep --max-configs`); the
+        /// tasks' sweeps are given the same limit.
+        #[arg(long, value_name = "N", default_value_t = bvhlab_pipeline::experiment::DEFAULT_MAX_CONFIGS)]
+        max_configs: u64,
     },
     /// Run one chain and print its result.
     Eval {
@@ -228,8 +236,8 @@ fn largest_estimate(chains: &[ChainSpec], limit: Option<&(u64, String)>) -> Resu
 
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
-        Cmd::Sweep { experiment, cache, threads, out, max_memory, plan, shard, shards, status, report_only, json } => {
-            let exp = Experiment::load(&experiment, &Registry::standard())?;
+        Cmd::Sweep { experiment, cache, threads, out, max_memory, plan, shard, shards, status, report_only, json, max_configs } => {
+            let exp = Experiment::load_limited(&experiment, &Registry::standard(), max_configs)?;
             if shards == Some(0) {
                 return Err(Error::input("--shards must be at least 1"));
             }
@@ -285,8 +293,9 @@ fn run(cli: Cli) -> Result<()> {
         }
         Cmd::Slurm {
             experiment, tasks, cache, partition, time, constraint, account, mem, cpus_per_task, sbatch_arg, dir, out, submit,
+            max_configs,
         } => {
-            let exp = Experiment::load(&experiment, &Registry::standard())?;
+            let exp = Experiment::load_limited(&experiment, &Registry::standard(), max_configs)?;
             let peak = largest_estimate(&exp.chains(), None)?.map(|e| e.peak_bytes);
             let args = slurm::SlurmArgs {
                 experiment,
@@ -302,6 +311,7 @@ fn run(cli: Cli) -> Result<()> {
                 out,
                 sbatch_args: sbatch_arg,
                 submit,
+                max_configs,
             };
             // The plan against the shared cache: the largest shard's estimate (advice for --time).
             let store = Store::open(&args.cache)?;
