@@ -226,7 +226,7 @@ fn largest_estimate(chains: &[ChainSpec], limit: Option<&(u64, String)>) -> Resu
         }
         let Some(count) = counts[&c.scene] else { continue };
         let est = estimate::estimate(c, &estimate::chain_stages(c, &registry), count);
-        estimate::check(&c.scene, &est, limit)?;
+        let est = estimate::check_source(&c.scene, &c.source, &est, limit)?;
         if worst.as_ref().is_none_or(|w| est.peak_bytes > w.peak_bytes) {
             worst = Some(est);
         }
