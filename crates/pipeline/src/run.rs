@@ -422,12 +422,27 @@ impl Runner {
     /// would be upstream of itself: impossible. A hit never keeps a lock, and a failed chain drops
     /// all of its locks, so a lock is never held while waiting for something downstream.
     fn cached<T: serde::de::DeserializeOwned>(&self, node: &NodeDef, ext: &str) -> Option<T> {
-        if let Some(v) = self.store.get_entry(node.stage, &node.key, ext, false) {
+        self.cached_with(node, ext, &[])
+    }
+
+    /// `cached`, with the entry's raw files `also` checked too (`Store::get_entry_with`).
+    fn cached_with<T: serde::de::DeserializeOwned>(
+        &self,
+        node: &NodeDef,
+        ext: &str,
+        also: &[&str],
+    ) -> Option<T> {
+        if let Some(v) = self
+            .store
+            .get_entry_with(node.stage, &node.key, ext, also, false)
+        {
             self.store.unlock(node.stage, &node.key);
             return Some(v);
         }
         self.store.lock(node.stage, &node.key);
-        let v = self.store.get_entry(node.stage, &node.key, ext, true);
+        let v = self
+            .store
+            .get_entry_with(node.stage, &node.key, ext, also, true);
         if v.is_some() {
             self.store.unlock(node.stage, &node.key);
         }
@@ -1069,7 +1084,12 @@ impl Runner {
 
     fn measure(&mut self, plan: &Plan) -> Result<MeasureSummary> {
         let (node, rays_spec) = plan.measure.clone().expect("measure node");
-        if let Some(m) = self.cached::<MeasureSummary>(&node, "sum") {
+        // Primary rays leave a heat map the report copies: checked like the summary.
+        let also: &[&str] = match rays_spec {
+            RaySpec::Primary { .. } => &["png"],
+            _ => &[],
+        };
+        if let Some(m) = self.cached_with::<MeasureSummary>(&node, "sum", also) {
             self.note("measure", node.key, false);
             return Ok(m);
         }

@@ -1,0 +1,94 @@
+//! Issue 15 faults through the real binary: a corrupt or repaired-away heat map is recomputed.
+use std::path::Path;
+
+mod common;
+use common::{command, ok};
+
+const TINY: &str = r#"name = "tiny"
+scenes = ["gen:sphere:n=500"]
+repeat = 1
+[[chain]]
+build = "binned-sah"
+bins = [4, 8]
+[rays]
+sets = ["primary:16x16"]
+"#;
+
+const PNG_MAGIC: &[u8] = b"\x89PNG\r\n\x1a\n";
+
+fn sweep(dir: &Path, extra: &[&str]) -> std::process::Output {
+    sweep_in(dir, "c", extra)
+}
+
+fn sweep_in(dir: &Path, cache: &str, extra: &[&str]) -> std::process::Output {
+    let mut args = vec!["sweep", "tiny.toml", "--cache", cache, "--out", "rep"];
+    args.extend_from_slice(extra);
+    command(&args, dir).output().unwrap()
+}
+
+fn pngs(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut v: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|x| x == "png"))
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn corrupt_heat_map_is_recomputed_before_and_after_repair() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("tiny.toml"), TINY).unwrap();
+    let cold = ok(sweep(d, &[]), "cold");
+    assert_eq!(cold["rows"], 2);
+    let cached = pngs(&d.join("c/measure"));
+    assert_eq!(cached.len(), 2);
+    let good = std::fs::read(&cached[0]).unwrap();
+    assert!(good.starts_with(PNG_MAGIC));
+
+    // 1. Corrupted in place: detected with a warning, recomputed, the report gets a good one.
+    let mut bad = good.clone();
+    let mid = bad.len() / 2;
+    bad[mid] ^= 0xff;
+    std::fs::write(&cached[0], &bad).unwrap();
+    let o = sweep(d, &[]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    let warm = ok(o, "sweep over a corrupt heat map");
+    assert!(
+        err.contains("warning: bad cache file") && err.contains(".png"),
+        "{err}"
+    );
+    assert_eq!(warm["per_stage"]["measure"]["computed"], 1, "{warm}");
+    assert_eq!(std::fs::read(&cached[0]).unwrap(), good, "recomputed bytes");
+    for p in pngs(&d.join("rep/heatmaps")) {
+        let b = std::fs::read(&p).unwrap();
+        assert!(b.starts_with(PNG_MAGIC) && b != bad, "{}", p.display());
+    }
+    assert_eq!(pngs(&d.join("rep/heatmaps")).len(), 2);
+
+    // 2. Corrupted, then repaired away: the next sweep recomputes it instead of dropping it.
+    std::fs::write(&cached[1], b"not a png").unwrap();
+    let o = command(&["cache", "verify", "--repair", "--cache", "c"], d)
+        .output()
+        .unwrap();
+    assert!(!o.status.success(), "the cache was not clean");
+    assert!(!cached[1].exists(), "quarantined");
+    let o = sweep(d, &[]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    let after = ok(o, "sweep after repair");
+    assert_eq!(
+        after["per_stage"]["measure"]["computed"], 1,
+        "{after} {err}"
+    );
+    assert!(std::fs::read(&cached[1]).unwrap().starts_with(PNG_MAGIC));
+    assert_eq!(pngs(&d.join("rep/heatmaps")).len(), 2, "{err}");
+    let html = std::fs::read_to_string(d.join("rep/index.html")).unwrap();
+    assert!(!html.contains("heat map of"), "no heat-map problem listed");
+    let o = command(&["cache", "verify", "--cache", "c"], d)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stdout));
+}
