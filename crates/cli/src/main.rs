@@ -62,6 +62,10 @@ enum Cmd {
         /// a larger grid is refused (exit 2) before anything is expanded.
         #[arg(long, value_name = "N", default_value_t = bvhlab_pipeline::experiment::DEFAULT_MAX_CONFIGS)]
         max_configs: u64,
+        /// Replace the report even if the new one has fewer rows than the one in the report
+        /// directory (otherwise refused, exit 2, so an incomplete cache never wipes a good report).
+        #[arg(long)]
+        force: bool,
     },
     /// Write (and with --submit submit) a Slurm job array that runs the experiment's shards against
     /// one shared cache, plus a report job that runs after the array (afterany).
@@ -236,7 +240,7 @@ fn largest_estimate(chains: &[ChainSpec], limit: Option<&(u64, String)>) -> Resu
 
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
-        Cmd::Sweep { experiment, cache, threads, out, max_memory, plan, shard, shards, status, report_only, json, max_configs } => {
+        Cmd::Sweep { experiment, cache, threads, out, max_memory, plan, shard, shards, status, report_only, json, max_configs, force } => {
             let exp = Experiment::load_limited(&experiment, &Registry::standard(), max_configs)?;
             if shards == Some(0) {
                 return Err(Error::input("--shards must be at least 1"));
@@ -268,14 +272,16 @@ fn run(cli: Cli) -> Result<()> {
                 return Ok(());
             }
             if report_only {
-                return report_only_sweep(&exp, &experiment, cache.as_deref(), threads, out);
+                return report_only_sweep(&exp, &experiment, cache.as_deref(), threads, out, force);
             }
+            let out_dir = out.unwrap_or_else(|| PathBuf::from("reports").join(&exp.name));
+            // A sweep writes one row per chain: refuse before computing anything.
+            keep_larger_report(&out_dir, exp.chains().len(), force)?;
             check_memory(&exp.chains(), max_memory.as_deref())?;
             let store = Store::open(store::resolve_root(cache.as_deref()))?;
             let mut runner = Runner::new(store);
             let progress = std::io::stderr().is_terminal();
             let res = bvhlab_pipeline::with_threads(threads, || sweep(&exp, &mut runner, progress))??;
-            let out_dir = out.unwrap_or_else(|| PathBuf::from("reports").join(&exp.name));
             let reference = reference_dir(&experiment);
             let report = bvhlab_report::write_report(&out_dir, &exp.name, &res.rows, reference.as_deref())
                 .map_err(|e| Error::internal(format!("report: {e}")))?;
@@ -625,6 +631,7 @@ fn report_only_sweep(
     cache: Option<&Path>,
     threads: Option<usize>,
     out: Option<PathBuf>,
+    force: bool,
 ) -> Result<()> {
     use bvhlab_pipeline::plan::{chain_label, chain_status, plan};
     let store = Store::open(store::resolve_root(cache))?;
@@ -649,6 +656,7 @@ fn report_only_sweep(
         rows.push(bvhlab_pipeline::with_threads(threads, || runner.run_chain(c, &exp.name))??);
     }
     let out_dir = out.unwrap_or_else(|| PathBuf::from("reports").join(&exp.name));
+    keep_larger_report(&out_dir, rows.len(), force)?;
     let reference = reference_dir(experiment);
     let options = bvhlab_report::ReportOptions { missing_chains: missing_chains.clone() };
     let report = bvhlab_report::write_report_with(&out_dir, &exp.name, &rows, reference.as_deref(), &options)
@@ -675,6 +683,18 @@ fn report_only_sweep(
             p.chains.len(),
             rows.len()
         )))
+    }
+}
+
+/// Refuses (exit 2) to replace the report in `out_dir` by one with fewer rows unless `force`.
+fn keep_larger_report(out_dir: &Path, new_rows: usize, force: bool) -> Result<()> {
+    match bvhlab_report::existing_rows(out_dir) {
+        Some(old) if old > new_rows && !force => Err(Error::input(format!(
+            "{}: the existing report has {old} rows and the new one would have {new_rows}; not replacing it \
+             (use --force to replace it anyway)",
+            out_dir.display()
+        ))),
+        _ => Ok(()),
     }
 }
 

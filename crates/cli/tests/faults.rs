@@ -1,4 +1,6 @@
-//! Issue 15 faults through the real binary: a corrupt or repaired-away heat map is recomputed.
+//! Issue 15 faults through the real binary: a corrupt or repaired-away heat map is recomputed,
+//! `--report-only` never replaces a report by a smaller one without `--force`, a killed report
+//! writer's temporary files are removed by the next run.
 use std::path::Path;
 
 mod common;
@@ -91,4 +93,77 @@ fn corrupt_heat_map_is_recomputed_before_and_after_repair() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stdout));
+}
+
+#[test]
+fn report_only_never_shrinks_a_report_without_force() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("tiny.toml"), TINY).unwrap();
+    ok(sweep(d, &[]), "cold");
+    let before = std::fs::read(d.join("rep/results.parquet")).unwrap();
+    // An empty cache: zero complete chains.
+    let o = sweep_in(d, "empty", &["--report-only"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("the existing report has 2 rows and the new one would have 0")
+            && err.contains("--force"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(d.join("rep/results.parquet")).unwrap(),
+        before,
+        "report untouched"
+    );
+    // A plain sweep of a smaller experiment is refused before computing anything.
+    std::fs::write(
+        d.join("tiny.toml"),
+        TINY.replace("bins = [4, 8]", "bins = 4"),
+    )
+    .unwrap();
+    let o = sweep_in(d, "c2", &[]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("2 rows and the new one would have 1"));
+    assert!(!d.join("c2").exists(), "refused before computing");
+    // --force replaces it (the report-only run still says it is incomplete: exit 3).
+    let o = sweep_in(d, "empty", &["--report-only", "--force"]);
+    assert_eq!(
+        o.status.code(),
+        Some(3),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_ne!(
+        std::fs::read(d.join("rep/results.parquet")).unwrap(),
+        before
+    );
+    // Equal or more rows need no --force.
+    ok(sweep(d, &[]), "one row over an empty report");
+}
+
+#[test]
+fn killed_report_writers_temporaries_are_removed_by_the_next_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("tiny.toml"), TINY).unwrap();
+    ok(sweep(d, &[]), "cold");
+    // What a report writer killed mid-write leaves: 0-byte temporaries under a dead pid.
+    let dead = 4_194_399; // above Linux's largest pid_max
+    let leftovers = [
+        d.join(format!("rep/.tmp-{dead}-index.html")),
+        d.join(format!("rep/.tmp-{dead}-results.csv")),
+        d.join(format!("rep/plots/.tmp-{dead}-pareto.png")),
+        d.join(format!("rep/heatmaps/.tmp-{dead}-x.png")),
+    ];
+    for p in &leftovers {
+        std::fs::write(p, b"").unwrap();
+    }
+    let o = sweep(d, &[]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    ok(o, "warm");
+    for p in &leftovers {
+        assert!(!p.exists(), "{} left; {err}", p.display());
+    }
+    assert!(err.contains("removed 4 temporary file(s)"), "{err}");
 }
