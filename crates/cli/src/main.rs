@@ -745,7 +745,21 @@ fn layout_about(name: &str) -> &'static str {
     }
 }
 
+/// A closed pipe on stdout or stderr (`bvhlab scenes | head`) ends the process quietly, killed by
+/// SIGPIPE like any Unix filter (status 141 in a shell). Rust ignores SIGPIPE, so writes failed with
+/// EPIPE and `println!` panicked ("error: internal") from whichever output path hit it first;
+/// restoring the default covers every path (threads, progress bars, stderr) at once. Cache writes
+/// are atomic, so dying mid-run is as safe as any kill.
+fn quiet_on_closed_pipe() {
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to the default, before any thread is started.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 fn main() {
+    quiet_on_closed_pipe();
     let cli = Cli::parse();
     // Last resort: a panic inside a stage is an internal error, reported like any other.
     let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(cli)));

@@ -1,7 +1,8 @@
 //! Issue 15 faults through the real binary: a corrupt or repaired-away heat map is recomputed,
 //! `--report-only` never replaces a report by a smaller one without `--force`, a killed report
-//! writer's temporary files are removed by the next run.
+//! writer's temporary files are removed by the next run, and a closed pipe ends quietly.
 use std::path::Path;
+use std::process::Stdio;
 
 mod common;
 use common::{command, ok};
@@ -166,4 +167,34 @@ fn killed_report_writers_temporaries_are_removed_by_the_next_run() {
         assert!(!p.exists(), "{} left; {err}", p.display());
     }
     assert!(err.contains("removed 4 temporary file(s)"), "{err}");
+}
+
+#[test]
+fn closed_pipe_ends_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("tiny.toml"), TINY).unwrap();
+    for args in [
+        vec!["scenes"],
+        vec!["methods"],
+        vec!["sweep", "tiny.toml", "--cache", "c", "--plan"],
+        vec!["cache", "ls", "--cache", "c"],
+    ] {
+        let mut child = command(&args, dir.path())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        // `| head -0`: the reader is gone before the first write.
+        drop(child.stdout.take());
+        let o = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.is_empty(), "{args:?}: {err}");
+        // Killed by SIGPIPE like any Unix filter (a shell shows 141), or done before it wrote.
+        assert!(
+            o.status.signal() == Some(13) || o.status.success(),
+            "{args:?}: {:?}",
+            o.status
+        );
+    }
 }
