@@ -478,6 +478,10 @@ fn run(cli: Cli) -> Result<()> {
             println!("  auto  smallest total bytes within a trace-time slowdown against bvh2, picked per scene from a small measured search (machine dependent)");
             println!("    max_slowdown=[{}]", bvhlab_pipeline::stages::AUTO_MAX_SLOWDOWN);
             println!("    rays=[{}]  random rays each candidate is timed on", bvhlab_pipeline::stages::AUTO_RAYS);
+            println!(
+                "    budget=[{}]  search time in multiples of one bvh2 trace of those rays; then it stops and says so",
+                bvhlab_pipeline::stages::AUTO_BUDGET
+            );
             Ok(())
         }
     }
@@ -699,7 +703,7 @@ fn keep_larger_report(out_dir: &Path, new_rows: usize, force: bool) -> Result<()
 }
 
 /// Row fields of the layout stage, printed as their own block by `eval` (without --json).
-const LAYOUT_FIELDS: [&str; 19] = [
+const LAYOUT_FIELDS: [&str; 22] = [
     "layout",
     "layout_params",
     "topology_bytes",
@@ -718,6 +722,9 @@ const LAYOUT_FIELDS: [&str; 19] = [
     "extra_tests_per_ray",
     "bvh2_trace_seconds",
     "slowdown",
+    "auto_max_slowdown",
+    "auto_budget_cut",
+    "auto_over_limit",
     "layout_choice",
 ];
 
