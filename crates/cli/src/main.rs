@@ -58,6 +58,14 @@ enum Cmd {
         /// With --plan / --status: print the nodes / chains as one JSON document.
         #[arg(long)]
         json: bool,
+        /// Most configurations (scene x chain grid point x ray set) the experiment may expand to;
+        /// a larger grid is refused (exit 2) before anything is expanded.
+        #[arg(long, value_name = "N", default_value_t = bvhlab_pipeline::experiment::DEFAULT_MAX_CONFIGS)]
+        max_configs: u64,
+        /// Replace the report even if the new one has fewer rows than the one in the report
+        /// directory (otherwise refused, exit 2, so an incomplete cache never wipes a good report).
+        #[arg(long)]
+        force: bool,
     },
     /// Write (and with --submit submit) a Slurm job array that runs the experiment's shards against
     /// one shared cache, plus a report job that runs after the array (afterany).
@@ -97,6 +105,10 @@ enum Cmd {
         /// Submit with sbatch (otherwise only write the scripts) and print the job ids.
         #[arg(long)]
         submit: bool,
+        /// Most configurations the experiment may expand to (see `sweep --max-configs`); the
+        /// tasks' sweeps are given the same limit.
+        #[arg(long, value_name = "N", default_value_t = bvhlab_pipeline::experiment::DEFAULT_MAX_CONFIGS)]
+        max_configs: u64,
     },
     /// Run one chain and print its result.
     Eval {
@@ -218,7 +230,7 @@ fn largest_estimate(chains: &[ChainSpec], limit: Option<&(u64, String)>) -> Resu
         }
         let Some(count) = counts[&c.scene] else { continue };
         let est = estimate::estimate(c, &estimate::chain_stages(c, &registry), count);
-        estimate::check(&c.scene, &est, limit)?;
+        let est = estimate::check_source(&c.scene, &c.source, &est, limit)?;
         if worst.as_ref().is_none_or(|w| est.peak_bytes > w.peak_bytes) {
             worst = Some(est);
         }
@@ -228,8 +240,8 @@ fn largest_estimate(chains: &[ChainSpec], limit: Option<&(u64, String)>) -> Resu
 
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
-        Cmd::Sweep { experiment, cache, threads, out, max_memory, plan, shard, shards, status, report_only, json } => {
-            let exp = Experiment::load(&experiment, &Registry::standard())?;
+        Cmd::Sweep { experiment, cache, threads, out, max_memory, plan, shard, shards, status, report_only, json, max_configs, force } => {
+            let exp = Experiment::load_limited(&experiment, &Registry::standard(), max_configs)?;
             if shards == Some(0) {
                 return Err(Error::input("--shards must be at least 1"));
             }
@@ -260,8 +272,11 @@ fn run(cli: Cli) -> Result<()> {
                 return Ok(());
             }
             if report_only {
-                return report_only_sweep(&exp, &experiment, cache.as_deref(), threads, out);
+                return report_only_sweep(&exp, &experiment, cache.as_deref(), threads, out, force);
             }
+            let out_dir = out.unwrap_or_else(|| PathBuf::from("reports").join(&exp.name));
+            // A sweep writes one row per chain: refuse before computing anything.
+            keep_larger_report(&out_dir, exp.chains().len(), force)?;
             check_memory(&exp.chains(), max_memory.as_deref())?;
             let store = Store::open(store::resolve_root(cache.as_deref()))?;
             let mut runner = Runner::new(store);
@@ -272,7 +287,6 @@ fn run(cli: Cli) -> Result<()> {
             for w in warnings {
                 eprintln!("warning: {w}");
             }
-            let out_dir = out.unwrap_or_else(|| PathBuf::from("reports").join(&exp.name));
             let reference = reference_dir(&experiment);
             let report = bvhlab_report::write_report(&out_dir, &exp.name, &res.rows, reference.as_deref())
                 .map_err(|e| Error::internal(format!("report: {e}")))?;
@@ -290,8 +304,9 @@ fn run(cli: Cli) -> Result<()> {
         }
         Cmd::Slurm {
             experiment, tasks, cache, partition, time, constraint, account, mem, cpus_per_task, sbatch_arg, dir, out, submit,
+            max_configs,
         } => {
-            let exp = Experiment::load(&experiment, &Registry::standard())?;
+            let exp = Experiment::load_limited(&experiment, &Registry::standard(), max_configs)?;
             let peak = largest_estimate(&exp.chains(), None)?.map(|e| e.peak_bytes);
             let args = slurm::SlurmArgs {
                 experiment,
@@ -307,6 +322,7 @@ fn run(cli: Cli) -> Result<()> {
                 out,
                 sbatch_args: sbatch_arg,
                 submit,
+                max_configs,
             };
             // The plan against the shared cache: the largest shard's estimate (advice for --time).
             let store = Store::open(&args.cache)?;
@@ -470,6 +486,10 @@ fn run(cli: Cli) -> Result<()> {
             println!("  auto  smallest total bytes within a trace-time slowdown against bvh2, picked per scene from a small measured search (machine dependent)");
             println!("    max_slowdown=[{}]", bvhlab_pipeline::stages::AUTO_MAX_SLOWDOWN);
             println!("    rays=[{}]  random rays each candidate is timed on", bvhlab_pipeline::stages::AUTO_RAYS);
+            println!(
+                "    budget=[{}]  search time in multiples of one bvh2 trace of those rays; then it stops and says so",
+                bvhlab_pipeline::stages::AUTO_BUDGET
+            );
             Ok(())
         }
     }
@@ -623,6 +643,7 @@ fn report_only_sweep(
     cache: Option<&Path>,
     threads: Option<usize>,
     out: Option<PathBuf>,
+    force: bool,
 ) -> Result<()> {
     use bvhlab_pipeline::plan::{chain_label, chain_status, plan};
     let store = Store::open(store::resolve_root(cache))?;
@@ -647,6 +668,7 @@ fn report_only_sweep(
         rows.push(bvhlab_pipeline::with_threads(threads, || runner.run_chain(c, &exp.name))??);
     }
     let out_dir = out.unwrap_or_else(|| PathBuf::from("reports").join(&exp.name));
+    keep_larger_report(&out_dir, rows.len(), force)?;
     let reference = reference_dir(experiment);
     let options = bvhlab_report::ReportOptions { missing_chains: missing_chains.clone() };
     let report = bvhlab_report::write_report_with(&out_dir, &exp.name, &rows, reference.as_deref(), &options)
@@ -676,8 +698,20 @@ fn report_only_sweep(
     }
 }
 
+/// Refuses (exit 2) to replace the report in `out_dir` by one with fewer rows unless `force`.
+fn keep_larger_report(out_dir: &Path, new_rows: usize, force: bool) -> Result<()> {
+    match bvhlab_report::existing_rows(out_dir) {
+        Some(old) if old > new_rows && !force => Err(Error::input(format!(
+            "{}: the existing report has {old} rows and the new one would have {new_rows}; not replacing it \
+             (use --force to replace it anyway)",
+            out_dir.display()
+        ))),
+        _ => Ok(()),
+    }
+}
+
 /// Row fields of the layout stage, printed as their own block by `eval` (without --json).
-const LAYOUT_FIELDS: [&str; 19] = [
+const LAYOUT_FIELDS: [&str; 22] = [
     "layout",
     "layout_params",
     "topology_bytes",
@@ -696,6 +730,9 @@ const LAYOUT_FIELDS: [&str; 19] = [
     "extra_tests_per_ray",
     "bvh2_trace_seconds",
     "slowdown",
+    "auto_max_slowdown",
+    "auto_budget_cut",
+    "auto_over_limit",
     "layout_choice",
 ];
 
@@ -723,7 +760,21 @@ fn layout_about(name: &str) -> &'static str {
     }
 }
 
+/// A closed pipe on stdout or stderr (`bvhlab scenes | head`) ends the process quietly, killed by
+/// SIGPIPE like any Unix filter (status 141 in a shell). Rust ignores SIGPIPE, so writes failed with
+/// EPIPE and `println!` panicked ("error: internal") from whichever output path hit it first;
+/// restoring the default covers every path (threads, progress bars, stderr) at once. Cache writes
+/// are atomic, so dying mid-run is as safe as any kill.
+fn quiet_on_closed_pipe() {
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to the default, before any thread is started.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 fn main() {
+    quiet_on_closed_pipe();
     let cli = Cli::parse();
     // Last resort: a panic inside a stage is an internal error, reported like any other.
     let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(cli)));

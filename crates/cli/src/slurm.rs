@@ -28,6 +28,8 @@ pub struct SlurmArgs {
     /// Extra `#SBATCH` lines' arguments, e.g. `--qos=short` (repeatable).
     pub sbatch_args: Vec<String>,
     pub submit: bool,
+    /// `--max-configs` the experiment was accepted with; the tasks get the same.
+    pub max_configs: u64,
 }
 
 /// Values of the scripts that do not come from the flags directly.
@@ -182,13 +184,14 @@ pub fn write_scripts(a: &SlurmArgs, d: &Derived) -> Result<Scripts> {
          # Written by `bvhlab slurm`; resubmitting computes only what is missing.\n\
          set -euo pipefail\n\
          exec {exe} sweep {exp} --cache {cache} --shard \"${{SLURM_ARRAY_TASK_ID}}/{n}\" \\\n    \
-         --threads \"${{SLURM_CPUS_PER_TASK:-{cpus}}}\" --max-memory {mem_bytes}\n",
+         --threads \"${{SLURM_CPUS_PER_TASK:-{cpus}}}\" --max-memory {mem_bytes} --max-configs {mc}\n",
         header(&job, a.cpus_per_task, &mem, &array_extra),
         n = a.tasks,
         exe = sh(&exe.to_string_lossy()),
         exp = sh(&exp.to_string_lossy()),
         cache = sh(&cache.to_string_lossy()),
         cpus = a.cpus_per_task,
+        mc = a.max_configs,
     );
     let report_extra = vec![format!(
         "#SBATCH --output={}",
@@ -199,12 +202,13 @@ pub fn write_scripts(a: &SlurmArgs, d: &Derived) -> Result<Scripts> {
          # Builds {out} from the cache once the array has ended (afterany). Exit 3: some chains\n\
          # are missing (tasks failed or were cancelled): resubmit the same `bvhlab slurm` command.\n\
          set -euo pipefail\n\
-         exec {exe} sweep {exp} --cache {cache} --report-only --out {out}\n",
+         exec {exe} sweep {exp} --cache {cache} --report-only --out {out} --max-configs {mc}\n",
         header(&format!("{job}-report"), 1, "2G", &report_extra),
         exe = sh(&exe.to_string_lossy()),
         exp = sh(&exp.to_string_lossy()),
         cache = sh(&cache.to_string_lossy()),
         out = sh(&out.to_string_lossy()),
+        mc = a.max_configs,
     );
     let array_path = dir.join("array.sbatch");
     let report_path = dir.join("report.sbatch");
@@ -348,6 +352,7 @@ mod tests {
             out: Some(dir.join("rep")),
             sbatch_args: vec!["--qos=short".into()],
             submit: false,
+            max_configs: 20_000,
         }
     }
 
@@ -380,6 +385,10 @@ mod tests {
         assert!(a.contains("'"), "{a}");
         let r = std::fs::read_to_string(&s.report).unwrap();
         assert!(r.contains("--report-only") && !r.contains("--array"), "{r}");
+        assert!(
+            a.contains("--max-configs 20000") && r.contains("--max-configs 20000"),
+            "{a}\n{r}"
+        );
         assert!(s.logs.is_dir());
     }
 

@@ -155,6 +155,14 @@ fn produce<R: Read>(
                 }
                 Ok(k) => filled += k,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => {
+                    return Err((
+                        None,
+                        format!(
+                            "truncated gzip file: the compressed stream ends after {filled} bytes of OBJ text ({e})"
+                        ),
+                    ))
+                }
                 Err(e) => {
                     return Err((
                         None,
@@ -164,6 +172,11 @@ fn produce<R: Read>(
             }
         }
         text.truncate(filled);
+        // A UTF-8 byte-order mark (written by some Windows tools) is not part of the first
+        // statement: left in, it hid the first line from the scan and from tobj.
+        if start == 0 && text.starts_with(b"\xef\xbb\xbf") {
+            text.drain(..3);
+        }
         // Validate up to the last complete line (everything at end of input).
         let end = if eof {
             text.len()
@@ -279,6 +292,7 @@ struct Scanner {
 }
 
 const KIND: [&str; 3] = ["vertex", "texture coordinate", "normal"];
+const KINDS: [&str; 3] = ["vertices", "texture coordinates", "normals"];
 
 impl Scanner {
     /// `chunk` holds whole lines (only the last chunk of a file may lack the final newline).
@@ -398,9 +412,10 @@ impl Scanner {
             if self.max_ref[kind] > total as u64 {
                 let what = KIND[kind];
                 let line = first_line_over(text, kind, total).unwrap_or(self.line);
+                let defined = if total == 1 { what } else { KINDS[kind] };
                 return Err((
                     line,
-                    format!("face {what} index out of range (the file defines {total} {what}s)"),
+                    format!("face {what} index out of range (the file defines {total} {defined})"),
                 ));
             }
         }

@@ -284,3 +284,56 @@ fn long_binary_line_fails_early_with_its_line() {
     let f = tmp("longline.obj", s.as_bytes());
     assert_eq!(load_obj(&f.0).unwrap().triangles.len(), k - 2);
 }
+
+/// Issue 15: a UTF-8 byte-order mark made the first line vanish ("the file defines 2 vertexs").
+#[test]
+fn byte_order_mark_is_skipped() {
+    let bom = format!("\u{feff}{QUAD}");
+    let s = load_str(&bom).unwrap();
+    assert_eq!(s.triangles, load_str(QUAD).unwrap().triangles);
+    // Also gzip-compressed, and with the BOM right before a face.
+    let f = tmp("bom.obj.gz", &gz(bom.as_bytes()));
+    assert_eq!(load_obj(&f.0).unwrap().triangles.len(), 2);
+    let s = load_str("\u{feff}v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    assert_eq!(s.triangles.len(), 1);
+    // A BOM elsewhere is still text on its line, not a statement: the line numbers stay right.
+    let (line, reason) = err_line("v 0 0 0\nv 1 0 0\n\u{feff}v 0 1 0\nf 1 2 3\n");
+    assert_eq!(line, Some(4), "{reason}");
+    assert!(reason.contains("the file defines 2 vertices"), "{reason}");
+}
+
+#[test]
+fn out_of_range_counts_are_plural_words() {
+    for (text, needle) in [
+        ("v 0 0 0\nf 1 2 3\n", "defines 1 vertex)"),
+        (
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3/2\nvt 0 0\n",
+            "defines 1 texture coordinate)",
+        ),
+        (
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nvn 0 1 0\nf 1 2 3//3\n",
+            "defines 2 normals)",
+        ),
+        (
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3/1\n",
+            "defines 0 texture coordinates)",
+        ),
+    ] {
+        let (_, reason) = err_line(text);
+        assert!(reason.contains(needle), "{needle}: {reason}");
+        assert!(
+            !reason.contains("vertexs") && !reason.contains("normals)s"),
+            "{reason}"
+        );
+    }
+}
+
+/// Issue 15: a truncated `.obj.gz` says so (and how much text it held).
+#[test]
+fn truncated_gzip_says_truncated() {
+    let full = gz(QUAD.repeat(2000).as_bytes());
+    let f = tmp("cut.obj.gz", &full[..full.len() / 2]);
+    let e = load_obj(&f.0).unwrap_err();
+    assert!(e.reason.starts_with("truncated gzip file"), "{e}");
+    assert!(e.to_string().contains("cut.obj.gz"), "{e}");
+}

@@ -143,19 +143,36 @@ pub enum Layout {
     Octree1(octree1::Octree1),
 }
 
+/// Start of the error of a build given up at its deadline (`build_until`).
+pub const DEADLINE_REACHED: &str = "deadline reached";
+
 /// Builds `spec` for a scene. BVH layouts store `bvh` (its topology is kept exactly); octrees are
 /// built from the triangles alone and ignore `bvh`.
 pub fn build(spec: &LayoutSpec, bvh: &Bvh, tris: &[Triangle]) -> Result<Layout, String> {
+    build_until(spec, bvh, tris, None)
+}
+
+/// `build`, given up with an error starting with [`DEADLINE_REACHED`] once `deadline` has passed.
+/// Only octree builds check it (between levels): their time is not bounded by the input size;
+/// bvh2 and qbvh builds are one linear pass over the BVH.
+pub fn build_until(
+    spec: &LayoutSpec,
+    bvh: &Bvh,
+    tris: &[Triangle],
+    deadline: Option<std::time::Instant>,
+) -> Result<Layout, String> {
     Ok(match spec.name.as_str() {
         "bvh2" => Layout::Bvh2(bvh2::Bvh2::build(bvh)),
         "qbvh" => Layout::Qbvh(qbvh::Qbvh::build(bvh, &qbvh::Config::from_spec(spec)?)?),
-        "octree" => Layout::Octree(octree::Octree::build(
+        "octree" => Layout::Octree(octree::Octree::build_until(
             tris,
             &octree::Config::from_spec(spec)?,
+            deadline,
         )?),
-        "octree1" => Layout::Octree1(octree1::Octree1::build(
+        "octree1" => Layout::Octree1(octree1::Octree1::build_until(
             tris,
             &octree1::Config::from_spec(spec)?,
+            deadline,
         )?),
         other => {
             return Err(format!(

@@ -330,6 +330,17 @@ impl Octree {
     /// with the 8 children of each interior node consecutive, and leaves' references are in node
     /// order. Nodes of a level are decided in parallel and appended in order (deterministic).
     pub fn build(tris: &[Triangle], cfg: &Config) -> Result<Octree, String> {
+        Self::build_until(tris, cfg, None)
+    }
+
+    /// `build`, given up (an error starting with [`crate::DEADLINE_REACHED`]) when a level ends
+    /// after `deadline`: on some scenes (a huge ground plane under a small dense city) the levels
+    /// multiply references for minutes, and a time-bounded caller (`layout=auto`) must not wait.
+    pub fn build_until(
+        tris: &[Triangle],
+        cfg: &Config,
+        deadline: Option<std::time::Instant>,
+    ) -> Result<Octree, String> {
         cfg.check("octree")?;
         if let Some(i) = tris.iter().position(|t| !t.is_finite()) {
             return Err(format!("octree: triangle {i} has non-finite coordinates"));
@@ -354,7 +365,17 @@ impl Octree {
             start: 0,
             end: buf.len(),
         }];
+        let mut depth = 0;
         while !level.is_empty() {
+            if deadline.is_some_and(|d| std::time::Instant::now() >= d) {
+                return Err(format!(
+                    "{}: octree build stopped after {depth} levels ({} nodes, {} references so far)",
+                    crate::DEADLINE_REACHED,
+                    nodes.len(),
+                    prims.len() + buf.len()
+                ));
+            }
+            depth += 1;
             let splits: Vec<Option<Split>> = level
                 .par_iter()
                 .with_min_len(64)

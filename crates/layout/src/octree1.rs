@@ -112,8 +112,17 @@ pub struct Octree1 {
 
 impl Octree1 {
     pub fn build(tris: &[Triangle], cfg: &Config) -> Result<Octree1, String> {
+        Self::build_until(tris, cfg, None)
+    }
+
+    /// `build` with the basic octree's deadline (`Octree::build_until`).
+    pub fn build_until(
+        tris: &[Triangle],
+        cfg: &Config,
+        deadline: Option<std::time::Instant>,
+    ) -> Result<Octree1, String> {
         cfg.check("octree1")?;
-        let o = Octree::build(tris, &cfg.base)?;
+        let o = Octree::build_until(tris, &cfg.base, deadline)?;
         Octree1::from_octree(&o, cfg)
     }
 

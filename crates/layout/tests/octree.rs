@@ -463,3 +463,24 @@ fn sat_overlap_is_tighter_than_bounding_boxes() {
     assert_eq!((sat.nodes, aabb.nodes), (73, 73));
     assert!(sat.prim_refs < aabb.prim_refs, "sat {sat:?} aabb {aabb:?}");
 }
+
+/// Issue 15: octree builds can take minutes (a huge ground plane under a dense city); a caller with
+/// a deadline gets a recognizable error instead, and without one the same layout as `build`.
+#[test]
+fn octree_builds_stop_at_their_deadline() {
+    use bvhlab_layout::{build_until, DEADLINE_REACHED};
+    let c = case("gen:hairball:n=500", 2, 10, 5);
+    let past = std::time::Instant::now();
+    for (name, kv) in [("octree", vec![]), ("octree1", vec![("fill", "dense")])] {
+        let e = build_until(&spec(name, &kv), &c.bvh, &c.scene.triangles, Some(past)).unwrap_err();
+        assert!(e.starts_with(DEADLINE_REACHED), "{name}: {e}");
+        let far = past + std::time::Duration::from_secs(3600);
+        assert_eq!(
+            build_until(&spec(name, &kv), &c.bvh, &c.scene.triangles, Some(far)).unwrap(),
+            build(&spec(name, &kv), &c.bvh, &c.scene.triangles).unwrap(),
+            "{name}"
+        );
+    }
+    // BVH layouts are one linear pass: no deadline check.
+    assert!(build_until(&spec("qbvh", &[]), &c.bvh, &c.scene.triangles, Some(past)).is_ok());
+}

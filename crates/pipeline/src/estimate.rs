@@ -172,24 +172,116 @@ pub fn triangle_count(source: &SceneSource) -> Result<Option<(u64, bool)>> {
                 return Ok(Some((text / OBJ_TEXT_BYTES_PER_TRIANGLE, false)));
             }
             let f = std::fs::File::open(path).map_err(err)?;
-            let mut r = std::io::BufReader::with_capacity(1 << 16, f);
-            let mut line = Vec::new();
-            let mut tris = 0u64;
-            loop {
-                line.clear();
-                if r.read_until(b'\n', &mut line).map_err(err)? == 0 {
-                    break;
-                }
-                if line.starts_with(b"f ") || line.starts_with(b"f\t") {
-                    let verts = line[1..]
-                        .split(|b| b.is_ascii_whitespace())
-                        .filter(|t| !t.is_empty())
-                        .count() as u64;
-                    tris += verts.saturating_sub(2);
-                }
-            }
-            Ok(Some((tris, true)))
+            let r = std::io::BufReader::with_capacity(1 << 16, f);
+            Ok(Some((count_faces(r).map_err(err)?.0, true)))
         }
+    }
+}
+
+/// Triangles of OBJ text (a face of k vertices is k - 2 triangles) and its length in bytes.
+fn count_faces(mut r: impl BufRead) -> std::io::Result<(u64, u64)> {
+    let mut line = Vec::new();
+    let (mut tris, mut bytes) = (0u64, 0u64);
+    loop {
+        line.clear();
+        let n = r.read_until(b'\n', &mut line)?;
+        if n == 0 {
+            break;
+        }
+        // A UTF-8 byte-order mark before the first statement (the loader skips it too).
+        let l = if bytes == 0 {
+            line.strip_prefix(b"\xef\xbb\xbf").unwrap_or(&line)
+        } else {
+            &line
+        };
+        bytes += n as u64;
+        if l.starts_with(b"f ") || l.starts_with(b"f\t") {
+            let verts = l[1..]
+                .split(|b| b.is_ascii_whitespace())
+                .filter(|t| !t.is_empty())
+                .count() as u64;
+            tris += verts.saturating_sub(2);
+        }
+    }
+    Ok((tris, bytes))
+}
+
+/// `check` for a chain over `source`: an `.obj.gz` whose estimate (from its gzip size trailer)
+/// exceeds the limit is decompressed (streamed) before the refusal, because a truncated or
+/// corrupt file's last four bytes are not a size at all (issue 15: a truncated file was refused
+/// as "not enough memory"). A stream that ends early is reported as such; a sound one is judged
+/// again by its exact face count. The happy path still reads only the trailer.
+pub fn check_source(
+    scene: &str,
+    source: &SceneSource,
+    est: &MemoryEstimate,
+    limit: Option<&(u64, String)>,
+) -> Result<MemoryEstimate> {
+    let refused = match check(scene, est, limit) {
+        Ok(()) => return Ok(est.clone()),
+        Err(e) => e,
+    };
+    let SceneSource::File(path) = source else {
+        return Err(refused);
+    };
+    if est.triangles_exact {
+        return Err(refused);
+    }
+    let (tris, _) = gzip_face_count(path)?;
+    let exact = MemoryEstimate {
+        triangles: tris,
+        triangles_exact: true,
+        peak_bytes: (est.peak_bytes as f64
+            + (tris as f64 - est.triangles as f64) * est.bytes_per_triangle.values().sum::<f64>())
+        .max(BASE_BYTES as f64)
+        .ceil() as u64,
+        ..est.clone()
+    };
+    check(scene, &exact, limit)?;
+    Ok(exact)
+}
+
+/// Exact triangles and text bytes of a gzip-compressed OBJ, by streaming it; a truncated or
+/// corrupt stream is an input error naming the file and how much text it held.
+pub fn gzip_face_count(path: &std::path::Path) -> Result<(u64, u64)> {
+    let f = std::fs::File::open(path)
+        .map_err(|e| Error::input(format!("{}: cannot read scene: {e}", path.display())))?;
+    let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+    let mut counted = CountingReader { inner: f, bytes: 0 };
+    let gz = flate2::read::MultiGzDecoder::new(&mut counted);
+    let mut text = CountingReader {
+        inner: gz,
+        bytes: 0,
+    };
+    let r = std::io::BufReader::with_capacity(1 << 16, &mut text);
+    match count_faces(r) {
+        Ok(x) => Ok(x),
+        Err(e) => {
+            let what = if e.kind() == std::io::ErrorKind::UnexpectedEof {
+                "truncated gzip file: the compressed stream ends early"
+            } else {
+                "corrupt or truncated gzip file"
+            };
+            let read = text.bytes;
+            Err(Error::input(format!(
+                "{}: {what} ({e}) after {read} bytes of OBJ text from {len} compressed bytes; its size \
+                 trailer cannot be trusted, so no estimate or load is possible (re-download or re-compress it)",
+                path.display()
+            )))
+        }
+    }
+}
+
+struct CountingReader<R> {
+    inner: R,
+    bytes: u64,
+}
+
+impl<R: Read> Read for CountingReader<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.bytes += n as u64;
+        Ok(n)
     }
 }
 
@@ -339,6 +431,57 @@ mod tests {
         .unwrap();
         let n = triangle_count(&SceneSource::File(p)).unwrap();
         assert_eq!(n, Some((3, true)));
+    }
+
+    #[test]
+    fn truncated_gzip_is_reported_as_truncated_not_as_memory() {
+        use std::io::Write;
+        let dir = tempfile::tempdir().unwrap();
+        let mut text = String::from("\u{feff}f 1 2 3\n");
+        for i in 0..20_000 {
+            text.push_str(&format!(
+                "v {i} {} 0.5\nv 1 {i} 0\nv 0 1 {i}\nf -3 -2 -1\n",
+                i * 7 % 13
+            ));
+        }
+        let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+        gz.write_all(text.as_bytes()).unwrap();
+        let whole = gz.finish().unwrap();
+        let good = dir.path().join("good.obj.gz");
+        std::fs::write(&good, &whole).unwrap();
+        // The BOM does not hide the first face from the count.
+        assert_eq!(gzip_face_count(&good).unwrap(), (20_001, text.len() as u64));
+        // Cut in the middle, then with 4 bytes that read as a huge size trailer.
+        let cut = dir.path().join("cut.obj.gz");
+        let mut bytes = whole[..whole.len() / 2].to_vec();
+        bytes.extend_from_slice(&[0xff, 0xff, 0xff, 0x7f]);
+        std::fs::write(&cut, &bytes).unwrap();
+        let reg = Registry::standard();
+        for (p, truncated) in [(&good, false), (&cut, true)] {
+            let src = SceneSource::File(p.clone());
+            let spec = ChainSpec::new(p.to_str().unwrap(), "binned-sah");
+            let est = estimate(
+                &spec,
+                &chain_stages(&spec, &reg),
+                triangle_count(&src).unwrap().unwrap(),
+            );
+            let limit = (256u64 << 20, "--max-memory".to_string());
+            let r = check_source("s", &src, &est, Some(&limit));
+            if truncated {
+                // The trailer promised ~2 GB of text: refused by the estimate, then found truncated.
+                assert!(check("s", &est, Some(&limit)).is_err());
+                let e = r.unwrap_err();
+                assert_eq!(e.exit_code(), 2);
+                assert!(
+                    e.message().contains("cut.obj.gz: ")
+                        && e.message().contains("truncated gzip file"),
+                    "{e}"
+                );
+                assert!(!e.message().contains("not enough memory"), "{e}");
+            } else {
+                assert!(r.is_ok(), "{r:?}");
+            }
+        }
     }
 
     #[test]

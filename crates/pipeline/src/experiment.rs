@@ -146,15 +146,76 @@ fn resolve_scene_path(spec: &str, exp_path: &Path) -> Option<PathBuf> {
         .find(|c| c.exists())
 }
 
+/// Configurations (chains: scene x grid point x ray set) an experiment may expand to unless the
+/// user raises the limit (`--max-configs`): above it, a typo in a grid would otherwise allocate and
+/// plan for minutes before anything runs.
+pub const DEFAULT_MAX_CONFIGS: u64 = 10_000;
+
+/// The number of configurations an experiment file expands to, counted from the grid's shape
+/// (axis lengths multiplied, saturating) before anything is expanded, and the axes that multiply
+/// to it, e.g. `scenes 10 x (chain 1: bins 1000 x leaf 100 + chain 2: 1) x rays 2`.
+fn count_configs(
+    scenes: usize,
+    chains: &[Vec<(String, Vec<String>)>],
+    rays: usize,
+) -> (u128, String) {
+    let mut per_chain = 0u128;
+    let mut parts = Vec::new();
+    for (i, axes) in chains.iter().enumerate() {
+        let n = axes
+            .iter()
+            .fold(1u128, |n, (_, v)| n.saturating_mul(v.len() as u128));
+        per_chain = per_chain.saturating_add(n);
+        // Axes of length 1 do not multiply anything: leaving them out keeps the message short.
+        let named: Vec<String> = axes
+            .iter()
+            .filter(|(_, v)| v.len() > 1)
+            .map(|(k, v)| format!("{k} {}", v.len()))
+            .collect();
+        let named = if named.is_empty() {
+            "1".to_string()
+        } else {
+            named.join(" x ")
+        };
+        parts.push(format!("chain {}: {named}", i + 1));
+    }
+    let rays = rays.max(1);
+    let total = (scenes as u128)
+        .saturating_mul(per_chain)
+        .saturating_mul(rays as u128);
+    let chains = if parts.len() == 1 {
+        parts.remove(0)
+    } else {
+        format!("({})", parts.join(" + "))
+    };
+    (total, format!("scenes {scenes} x {chains} x rays {rays}"))
+}
+
 impl Experiment {
+    /// Loads with the default configuration limit (`DEFAULT_MAX_CONFIGS`).
     pub fn load(path: &Path, registry: &Registry) -> Result<Experiment> {
+        Self::load_limited(path, registry, DEFAULT_MAX_CONFIGS)
+    }
+
+    /// Loads an experiment that may expand to at most `max_configs` configurations; above it,
+    /// an input error (exit 2) names the count and the axes, before anything is expanded.
+    pub fn load_limited(path: &Path, registry: &Registry, max_configs: u64) -> Result<Experiment> {
         let src = std::fs::read_to_string(path).map_err(|e| {
             Error::input(format!("{}: cannot read experiment: {e}", path.display()))
         })?;
-        Self::parse(&src, path, registry)
+        Self::parse_limited(&src, path, registry, max_configs)
     }
 
     pub fn parse(src: &str, path: &Path, registry: &Registry) -> Result<Experiment> {
+        Self::parse_limited(src, path, registry, DEFAULT_MAX_CONFIGS)
+    }
+
+    pub fn parse_limited(
+        src: &str,
+        path: &Path,
+        registry: &Registry,
+        max_configs: u64,
+    ) -> Result<Experiment> {
         let at = |offset: usize, msg: String| {
             let (l, c) = line_col(src, offset);
             Error::input(format!("{}:{l}:{c}: {msg}", path.display()))
@@ -181,6 +242,30 @@ impl Experiment {
         if f.chain.is_empty() {
             return Err(Error::input(format!(
                 "{}: no [[chain]] tables",
+                path.display()
+            )));
+        }
+        // Count before expanding anything (issue 15: a 10^9 grid grew memory with no output
+        // until killed). Reading the axes is linear in the file's size.
+        let mut chain_axes: Vec<Vec<(String, Vec<String>)>> = Vec::new();
+        for (i, ch) in f.chain.iter().enumerate() {
+            let err = |msg: String| at(ch.span().start, format!("chain #{}: {msg}", i + 1));
+            let table = ch.get_ref();
+            let mut axes: Vec<(String, Vec<String>)> = Vec::new();
+            for (k, v) in table {
+                axes.push((k.clone(), value_strings(k, v).map_err(err)?));
+            }
+            if !table.contains_key("build") {
+                return Err(err("missing `build`".into()));
+            }
+            chain_axes.push(axes);
+        }
+        let ray_sets = f.rays.as_ref().map_or(0, |r| r.sets.len());
+        let (configs, axes) = count_configs(f.scenes.len(), &chain_axes, ray_sets);
+        if configs > u128::from(max_configs) {
+            return Err(Error::input(format!(
+                "{}: {configs} configurations ({axes}) exceed --max-configs {max_configs}; \
+                 raise it with --max-configs N",
                 path.display()
             )));
         }
@@ -223,19 +308,11 @@ impl Experiment {
             )));
         }
         let mut points = Vec::new();
-        for (i, ch) in f.chain.iter().enumerate() {
+        for (i, (ch, axes)) in f.chain.iter().zip(&chain_axes).enumerate() {
             let err = |msg: String| at(ch.span().start, format!("chain #{}: {msg}", i + 1));
-            let table = ch.get_ref();
-            let mut axes: Vec<(String, Vec<String>)> = Vec::new();
-            for (k, v) in table {
-                axes.push((k.clone(), value_strings(k, v).map_err(err)?));
-            }
-            if !table.contains_key("build") {
-                return Err(err("missing `build`".into()));
-            }
             // Cartesian product over all keys (sorted by name, so expansion order is stable).
             let mut combos: Vec<BTreeMap<String, String>> = vec![BTreeMap::new()];
-            for (k, vals) in &axes {
+            for (k, vals) in axes {
                 combos = combos
                     .into_iter()
                     .flat_map(|c| {
@@ -625,6 +702,95 @@ max = [16.0, 4.0, 16.0]
                 "{e}"
             );
         }
+    }
+
+    /// Ten values per axis: `n` axes of `bins`-like parameters over 10 scenes.
+    fn big_grid(axes: usize) -> String {
+        let vals = "[2, 3, 4, 5, 6, 7, 8, 9, 10, 11]";
+        let mut s = String::from("name = \"big\"\nscenes = [");
+        let scenes: Vec<String> = (1..=10)
+            .map(|i| format!("\"gen:sphere:n={}\"", 100 + i))
+            .collect();
+        s.push_str(&scenes.join(", "));
+        s.push_str("]\n[[chain]]\nbuild = \"binned-sah\"\n");
+        for k in ["bins", "leaf", "c_t", "c_i", "centroid_stop"]
+            .iter()
+            .take(axes)
+        {
+            let v = match *k {
+                "centroid_stop" => "[\"split-axis\", \"any-axis\"]",
+                _ => vals,
+            };
+            s.push_str(&format!("{k} = {v}\n"));
+        }
+        s
+    }
+
+    #[test]
+    fn config_limit_counts_before_expanding() {
+        // 10 scenes x 10^4 grid points = 10^5 configurations; counted, never expanded.
+        let src = big_grid(4);
+        let t0 = std::time::Instant::now();
+        let e = parse(&src).unwrap_err();
+        assert!(t0.elapsed().as_secs_f64() < 1.0);
+        assert_eq!(e.exit_code(), 2);
+        let m = e.message();
+        assert!(
+            m.starts_with("exp.toml: 100000 configurations (scenes 10 x chain 1: "),
+            "{m}"
+        );
+        for needle in [
+            "bins 10",
+            "leaf 10",
+            "c_t 10",
+            "c_i 10",
+            "exceed --max-configs 10000",
+            "--max-configs N",
+        ] {
+            assert!(m.contains(needle), "`{needle}` not in {m}");
+        }
+        assert!(!m.contains("build 1"), "axes of length 1 are left out: {m}");
+        // Raised: expands to exactly the count.
+        let e =
+            Experiment::parse_limited(&src, Path::new("exp.toml"), &Registry::standard(), 100_000)
+                .unwrap();
+        assert_eq!(e.chains().len(), 100_000);
+        let e =
+            Experiment::parse_limited(&src, Path::new("exp.toml"), &Registry::standard(), 99_999)
+                .unwrap_err();
+        assert!(e.message().contains("100000 configurations"), "{e}");
+        // Several chains and ray sets: the sum of the chains' products times scenes and rays.
+        let src = "name = \"x\"\nscenes = [\"gen:sphere\", \"gen:city\"]\n[[chain]]\nbuild = \"binned-sah\"\nbins = [4, 8, 16]\n\
+                   [[chain]]\nbuild = [\"sweep-sah\", \"spatial-median\"]\n[rays]\nsets = [\"random:10\", \"primary:4x4\"]\n";
+        let e = Experiment::parse_limited(src, Path::new("exp.toml"), &Registry::standard(), 19)
+            .unwrap_err();
+        assert!(
+            e.message().contains(
+                "20 configurations (scenes 2 x (chain 1: bins 3 + chain 2: build 2) x rays 2)"
+            ),
+            "{e}"
+        );
+        assert_eq!(
+            Experiment::parse_limited(src, Path::new("exp.toml"), &Registry::standard(), 20)
+                .unwrap()
+                .chains()
+                .len(),
+            20
+        );
+    }
+
+    #[test]
+    fn config_count_saturates() {
+        // 10^20 per chain x 10^20 x 10^20 overflows u64 and nearly u128: saturates, still refused.
+        let axes: Vec<(String, Vec<String>)> = (0..20)
+            .map(|i| (format!("p{i}"), vec![String::new(); 10]))
+            .collect();
+        let chains = vec![axes.clone(); 3];
+        let (n, _) = count_configs(usize::MAX, &[axes, chains[0].clone()], usize::MAX);
+        assert_eq!(n, u128::MAX);
+        let (n, s) = count_configs(3, &chains, 0);
+        assert_eq!(n, 3 * 3 * 10u128.pow(20));
+        assert!(s.ends_with("x rays 1"), "{s}");
     }
 
     /// The experiment files shipped in `experiments/` parse with the current registry (a file whose

@@ -142,6 +142,14 @@ pub struct ResultRow {
     pub slowdown: Option<f64>,
     /// `layout=auto`: the candidates measured and why this one was picked.
     pub layout_choice: Option<String>,
+    /// `layout=auto`: the search's time budget ran out before every candidate that could have
+    /// won was measured (the choice is the best of those measured).
+    pub auto_budget_cut: Option<bool>,
+    /// `layout=auto`: the limit the choice was made under.
+    pub auto_max_slowdown: Option<f64>,
+    /// `layout=auto`: this row's `slowdown` (or, without rays, the search's) exceeds
+    /// `auto_max_slowdown`: the choice does not hold here.
+    pub auto_over_limit: Option<bool>,
     /// Path of the primary-ray heat map PNG in the cache, when the ray set is primary.
     pub heatmap: Option<String>,
     /// Stage keys (hex) of this chain, stage name -> key, for provenance.

@@ -307,6 +307,7 @@ impl Runner {
                             param("rays", a.rays),
                             param("seed", AUTO_SEED),
                             param("runs", AUTO_RUNS),
+                            param("budget", a.budget),
                             param("candidates", auto_candidates().join(";")),
                         ]
                         .into();
@@ -422,12 +423,27 @@ impl Runner {
     /// would be upstream of itself: impossible. A hit never keeps a lock, and a failed chain drops
     /// all of its locks, so a lock is never held while waiting for something downstream.
     fn cached<T: serde::de::DeserializeOwned>(&self, node: &NodeDef, ext: &str) -> Option<T> {
-        if let Some(v) = self.store.get_entry(node.stage, &node.key, ext, false) {
+        self.cached_with(node, ext, &[])
+    }
+
+    /// `cached`, with the entry's raw files `also` checked too (`Store::get_entry_with`).
+    fn cached_with<T: serde::de::DeserializeOwned>(
+        &self,
+        node: &NodeDef,
+        ext: &str,
+        also: &[&str],
+    ) -> Option<T> {
+        if let Some(v) = self
+            .store
+            .get_entry_with(node.stage, &node.key, ext, also, false)
+        {
             self.store.unlock(node.stage, &node.key);
             return Some(v);
         }
         self.store.lock(node.stage, &node.key);
-        let v = self.store.get_entry(node.stage, &node.key, ext, true);
+        let v = self
+            .store
+            .get_entry_with(node.stage, &node.key, ext, also, true);
         if v.is_some() {
             self.store.unlock(node.stage, &node.key);
         }
@@ -854,7 +870,7 @@ impl Runner {
             // Peak heap of the first build only (later builds reuse freed memory the same way).
             let mark = (run == 0).then(crate::memtrack::reset_peak);
             let t = Instant::now();
-            let l = (self.ops.layout)(&spec, bvh, tris).map_err(|e| {
+            let l = (self.ops.layout)(&spec, bvh, tris, None).map_err(|e| {
                 Error::internal(format!(
                     "layout `{}` on {}: {e}",
                     spec.name, plan.spec.scene
@@ -933,10 +949,21 @@ impl Runner {
         Ok(Some(art.summary.clone()))
     }
 
-    /// `layout=auto`: builds every candidate of `auto_candidates()`, times its trace of a random ray
-    /// sample alternately with bvh2 of the same BVH (median of `AUTO_RUNS`), and picks the candidate
-    /// with the fewest total bytes whose slowdown is at most `max_slowdown` (bvh2 always qualifies).
-    /// Timing-dependent, hence machine dependent: the decision and the measured table are stored.
+    /// `layout=auto`: the candidate of `auto_candidates()` with the fewest total bytes whose trace
+    /// of a random ray sample takes at most `max_slowdown` times bvh2's on the same BVH (bvh2, the
+    /// baseline, always qualifies). Timing-dependent, hence machine dependent: the decision and the
+    /// measured table are stored.
+    ///
+    /// Bounded (issue 15: over 300 s on thin hair, where one bvh2 trace of the sample takes 36 s
+    /// and the old search traced ~100 times, and on a huge ground plane, whose octree build never
+    /// ends): the search may spend `budget` times one bvh2 trace of its rays. It is an anytime
+    /// search: candidates are built in list order and only one smaller than the best qualifying
+    /// so far (bvh2 first) is validated, checked against bvh2's hits and timed (median of
+    /// `AUTO_RUNS` alternated runs), so the best so far is always a measured choice. Once the
+    /// budget is spent nothing more is built or timed (`budget_cut`); octree builds stop at the
+    /// deadline, a timing starts only if its traces are predicted to fit (from the last slowdown,
+    /// then from the candidate's own first trace), so the overrun is at most one build of a BVH
+    /// layout or one trace.
     fn auto_search(
         &self,
         plan: &Plan,
@@ -944,13 +971,24 @@ impl Runner {
         bvh: &Bvh,
         scene: &Scene,
     ) -> Result<(bvhlab_layout::LayoutSpec, AutoChoice)> {
+        let t_search = Instant::now();
         let tris = &scene.triangles;
         let rays = random_ray_set(scene, a.rays, AUTO_SEED);
+        let t = Instant::now();
         let reference = bvhlab_trace::trace(bvh, tris, &rays);
+        let bvh2_trace_seconds = secs(t);
+        let budget_seconds = a.budget * bvh2_trace_seconds;
+        let t_budget = Instant::now();
+        let left = || budget_seconds - t_budget.elapsed().as_secs_f64();
+        // One untimed and AUTO_RUNS timed traces of a candidate at slowdown `s`, and AUTO_RUNS of bvh2.
+        let cost = |s: f64| bvh2_trace_seconds * ((1 + AUTO_RUNS) as f64 * s + AUTO_RUNS as f64);
         let tri_count = tris.len().max(1) as f64;
         let mut specs = Vec::new();
-        let mut candidates = Vec::new();
-        for c in auto_candidates() {
+        let mut candidates: Vec<AutoCandidate> = Vec::new();
+        let mut budget_cut = false;
+        let mut best: Option<usize> = None;
+        let mut last_slowdown = 1.0f64;
+        for (i, c) in auto_candidates().into_iter().enumerate() {
             let spec = match parse_layout(&c)? {
                 LayoutRequest::Fixed(l) => l,
                 LayoutRequest::Auto(_) => return Err(Error::internal("auto candidate `auto`")),
@@ -964,70 +1002,131 @@ impl Runner {
                 bvh2_seconds: Vec::new(),
                 slowdown: 0.0,
                 error: None,
+                build_seconds: 0.0,
+                skipped: None,
             };
-            match (self.ops.layout)(&spec, bvh, tris) {
-                Err(e) => cand.error = Some(e),
-                Ok(l) => {
-                    let mem = l.memory();
-                    cand.total_bytes = mem.total_bytes;
-                    cand.total_bytes_per_triangle = mem.total_bytes as f64 / tri_count;
-                    if let Err(e) = l.validate(tris) {
-                        cand.error = Some(format!("invalid: {e}"));
+            let is_bvh2 = spec.name == "bvh2";
+            specs.push(spec);
+            // bvh2 (first) is the fallback: always built, whatever the budget.
+            if !is_bvh2 && left() <= 0.0 {
+                cand.skipped = Some("budget spent before its build".into());
+                budget_cut = true;
+                candidates.push(cand);
+                continue;
+            }
+            let spec = &specs[i];
+            let t = Instant::now();
+            let deadline = (!is_bvh2)
+                .then(|| t_budget + std::time::Duration::from_secs_f64(budget_seconds.min(1e9)));
+            let built = (self.ops.layout)(spec, bvh, tris, deadline);
+            cand.build_seconds = secs(t);
+            let l = match built {
+                Err(e) if e.starts_with(bvhlab_layout::DEADLINE_REACHED) => {
+                    cand.skipped = Some(format!("budget spent during its build ({e})"));
+                    budget_cut = true;
+                    candidates.push(cand);
+                    continue;
+                }
+                Err(e) => {
+                    cand.error = Some(e);
+                    candidates.push(cand);
+                    continue;
+                }
+                Ok(l) => l,
+            };
+            let mem = l.memory();
+            cand.total_bytes = mem.total_bytes;
+            cand.total_bytes_per_triangle = mem.total_bytes as f64 / tri_count;
+            if is_bvh2 {
+                // The baseline itself (the input BVH, validated by its own stage): slowdown 1
+                // by definition, no timing needed.
+                cand.slowdown = 1.0;
+                candidates.push(cand);
+                best = Some(i);
+                continue;
+            }
+            if let Some(b) = best {
+                if cand.total_bytes >= candidates[b].total_bytes {
+                    cand.skipped = Some(format!(
+                        "not smaller than {} {} (cannot win)",
+                        candidates[b].layout, candidates[b].params
+                    ));
+                    candidates.push(cand);
+                    continue;
+                }
+            }
+            if let Err(e) = l.validate(tris) {
+                cand.error = Some(format!("invalid: {e}"));
+                candidates.push(cand);
+                continue;
+            }
+            // A slow layout (an octree on hair at 2.2x) overran a prediction made with 1 by
+            // 200 s: predict from the last slowdown, then again from its own first trace.
+            if cost(last_slowdown) > left() {
+                cand.skipped = Some(format!(
+                    "budget: its timing (~{:.2} s predicted) does not fit in the {:.2} s left",
+                    cost(last_slowdown),
+                    left().max(0.0)
+                ));
+                budget_cut = true;
+                candidates.push(cand);
+                continue;
+            }
+            // Untimed first run (warms caches) doubles as an exactness check.
+            let t = Instant::now();
+            let st = l.trace(tris, &rays);
+            let own = secs(t) / bvh2_trace_seconds.max(1e-9);
+            let bad = hit_mismatches(&st.hits, &reference.hits);
+            if bad > 0 {
+                cand.error = Some(format!("{bad} hits differ from bvh2"));
+                candidates.push(cand);
+                continue;
+            }
+            let rest = bvh2_trace_seconds * AUTO_RUNS as f64 * (own + 1.0);
+            if rest > left() {
+                cand.skipped = Some(format!(
+                    "budget: its timed runs (~{rest:.2} s predicted from its first trace, {own:.2}x bvh2) \
+                     do not fit in the {:.2} s left",
+                    left().max(0.0)
+                ));
+                budget_cut = true;
+                candidates.push(cand);
+                continue;
+            }
+            for run in 0..AUTO_RUNS {
+                // Alternate which goes first so neither side always runs warm.
+                for layout_turn in [run % 2 == 0, run % 2 == 1] {
+                    let t = Instant::now();
+                    if layout_turn {
+                        std::hint::black_box(l.trace(tris, &rays));
+                        cand.seconds.push(secs(t));
                     } else {
-                        // Untimed first run (warms caches) doubles as an exactness check.
-                        let st = l.trace(tris, &rays);
-                        let bad = hit_mismatches(&st.hits, &reference.hits);
-                        if bad > 0 {
-                            cand.error = Some(format!("{bad} hits differ from bvh2"));
-                        } else {
-                            for run in 0..AUTO_RUNS {
-                                // Alternate which goes first so neither side always runs warm.
-                                let time_layout = |c: &mut AutoCandidate| {
-                                    let t = Instant::now();
-                                    std::hint::black_box(l.trace(tris, &rays));
-                                    c.seconds.push(secs(t));
-                                };
-                                let time_bvh2 = |c: &mut AutoCandidate| {
-                                    let t = Instant::now();
-                                    std::hint::black_box(bvhlab_trace::trace(bvh, tris, &rays));
-                                    c.bvh2_seconds.push(secs(t));
-                                };
-                                if run % 2 == 0 {
-                                    time_layout(&mut cand);
-                                    time_bvh2(&mut cand);
-                                } else {
-                                    time_bvh2(&mut cand);
-                                    time_layout(&mut cand);
-                                }
-                            }
-                            let b = median(&cand.bvh2_seconds);
-                            cand.slowdown = if b > 0.0 {
-                                median(&cand.seconds) / b
-                            } else {
-                                1.0
-                            };
-                        }
+                        std::hint::black_box(bvhlab_trace::trace(bvh, tris, &rays));
+                        cand.bvh2_seconds.push(secs(t));
                     }
                 }
             }
-            specs.push(spec);
+            let b = median(&cand.bvh2_seconds);
+            cand.slowdown = if b > 0.0 {
+                median(&cand.seconds) / b
+            } else {
+                1.0
+            };
+            last_slowdown = cand.slowdown.max(0.5);
+            if cand.slowdown <= a.max_slowdown {
+                best = Some(i);
+            }
             candidates.push(cand);
         }
-        let chosen = candidates
-            .iter()
-            .enumerate()
-            .filter(|(_, c)| {
-                c.error.is_none() && (c.layout == "bvh2" || c.slowdown <= a.max_slowdown)
-            })
-            .min_by_key(|(i, c)| (c.total_bytes, *i))
-            .map(|(i, _)| i)
-            .ok_or_else(|| {
-                Error::internal(format!(
-                    "layout auto on {}: no usable candidate (bvh2 failed)",
-                    plan.spec.scene
-                ))
-            })?;
+        let chosen = best.ok_or_else(|| {
+            Error::internal(format!(
+                "layout auto on {}: no usable candidate (bvh2 failed)",
+                plan.spec.scene
+            ))
+        })?;
+        let search_seconds = secs(t_search);
         let c = &candidates[chosen];
+        let over_limit = c.slowdown > a.max_slowdown;
         let label = |c: &AutoCandidate| {
             if c.params.is_empty() {
                 c.layout.clone()
@@ -1035,11 +1134,26 @@ impl Runner {
                 format!("{} {}", c.layout, c.params)
             }
         };
+        let skipped: Vec<String> = candidates
+            .iter()
+            .filter(|c| {
+                c.skipped
+                    .as_deref()
+                    .is_some_and(|s| s.starts_with("budget"))
+            })
+            .map(label)
+            .collect();
         let table: Vec<String> = candidates
             .iter()
-            .map(|c| match &c.error {
-                Some(e) => format!("{} (unusable: {e})", label(c)),
-                None => format!(
+            .map(|c| match (&c.error, &c.skipped) {
+                (Some(e), _) => format!("{} (unusable: {e})", label(c)),
+                (None, Some(why)) if c.total_bytes == 0 => format!("{} ({why})", label(c)),
+                (None, Some(why)) => format!(
+                    "{} ({:.2} B/tri, not timed: {why})",
+                    label(c),
+                    c.total_bytes_per_triangle
+                ),
+                (None, None) => format!(
                     "{} ({:.2} B/tri, {:.2}x)",
                     label(c),
                     c.total_bytes_per_triangle,
@@ -1047,14 +1161,37 @@ impl Runner {
                 ),
             })
             .collect();
+        let cut = if budget_cut {
+            format!(
+                "; BUDGET CUT: {} candidate(s) not measured ({}), the choice is the best of the rest",
+                skipped.len(),
+                skipped.join(", ")
+            )
+        } else {
+            String::new()
+        };
+        let over = if over_limit {
+            format!(
+                "; OVER LIMIT: slowdown {:.2}x > max_slowdown {}",
+                c.slowdown, a.max_slowdown
+            )
+        } else {
+            String::new()
+        };
         let reason = format!(
-            "{}: fewest total bytes ({:.2} B/tri) with slowdown {:.2}x <= max_slowdown {} (bvh2 always qualifies; {} random rays, median of {} alternated runs); candidates: {}",
+            "{}: fewest total bytes ({:.2} B/tri) with slowdown {:.2}x <= max_slowdown {} (bvh2 always qualifies; \
+             {} random rays, median of {} alternated runs, smallest first); search {:.2} s of a budget of {} x \
+             {:.4} s bvh2 trace = {:.2} s{cut}{over}; candidates: {}",
             label(c),
             c.total_bytes_per_triangle,
             c.slowdown,
             a.max_slowdown,
             a.rays,
             AUTO_RUNS,
+            search_seconds,
+            a.budget,
+            bvh2_trace_seconds,
+            budget_seconds,
             table.join("; ")
         );
         let choice = AutoChoice {
@@ -1063,6 +1200,13 @@ impl Runner {
             candidates,
             chosen,
             reason,
+            budget: a.budget,
+            bvh2_trace_seconds,
+            budget_seconds,
+            search_seconds,
+            budget_cut,
+            skipped,
+            over_limit,
         };
         Ok((specs.swap_remove(chosen), choice))
     }
@@ -1071,7 +1215,12 @@ impl Runner {
 
     fn measure(&mut self, plan: &Plan) -> Result<MeasureSummary> {
         let (node, rays_spec) = plan.measure.clone().expect("measure node");
-        if let Some(m) = self.cached::<MeasureSummary>(&node, "sum") {
+        // Primary rays leave a heat map the report copies: checked like the summary.
+        let also: &[&str] = match rays_spec {
+            RaySpec::Primary { .. } => &["png"],
+            _ => &[],
+        };
+        if let Some(m) = self.cached_with::<MeasureSummary>(&node, "sum", also) {
             self.note("measure", node.key, false);
             return Ok(m);
         }
@@ -1401,10 +1550,16 @@ impl Runner {
             Some((_, LayoutRequest::Fixed(l))) => {
                 method.push_str(&format!(" @{} {}", l.name, l.params_string()))
             }
-            Some((_, LayoutRequest::Auto(a))) => method.push_str(&format!(
-                " @auto max_slowdown={},rays={}",
-                a.max_slowdown, a.rays
-            )),
+            Some((_, LayoutRequest::Auto(a))) => {
+                method.push_str(&format!(
+                    " @auto max_slowdown={},rays={}",
+                    a.max_slowdown, a.rays
+                ));
+                // Only a non-default budget shows: labels of earlier reports stay the same.
+                if a.budget != AUTO_BUDGET {
+                    method.push_str(&format!(",budget={}", a.budget));
+                }
+            }
             None => {}
         }
         let per_ray = |total: u64, rays: u64| {
@@ -1516,9 +1671,22 @@ impl Runner {
             layout_choice: layout
                 .as_ref()
                 .and_then(|l| l.choice.as_ref().map(|c| c.reason.clone())),
+            auto_budget_cut: layout
+                .as_ref()
+                .and_then(|l| l.choice.as_ref().map(|c| c.budget_cut)),
+            auto_max_slowdown: layout
+                .as_ref()
+                .and_then(|l| l.choice.as_ref().map(|c| c.max_slowdown)),
             ..Default::default()
         };
         row.keys = keys;
+        // The choice was judged on the search's random rays; this row's slowdown is measured
+        // again on the chain's own rays (often primary, where compressed layouts lose more) and
+        // under other machine load. Either one above the limit is flagged, never silent.
+        row.auto_over_limit = layout
+            .as_ref()
+            .and_then(|l| l.choice.as_ref())
+            .map(|c| c.over_limit || row.slowdown.is_some_and(|s| s > c.max_slowdown));
         Ok(row)
     }
 }

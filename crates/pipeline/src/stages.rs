@@ -38,7 +38,7 @@ pub const OPTIMIZE_VERSION: u32 = 2;
 /// 5: ray sets at any scale: camera and ray lengths in f64 (1e-30 and 1e30 scenes got no hits).
 pub const MEASURE_VERSION: u32 = 5;
 pub const FOCUS_VERSION: u32 = 1;
-pub const LAYOUT_VERSION: u32 = 1;
+pub const LAYOUT_VERSION: u32 = 2;
 
 /// Stage implementation versions; injectable so tests can simulate a version bump.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -81,8 +81,9 @@ pub struct Ops {
     /// `bvhlab_morton::encode_cells`: the config plus the occupation grid's in-cell frame.
     pub encode:
         fn(&[Aabb], &[bvhlab_geom::Vec3], &EncodeConfig, bvhlab_morton::CellFrame) -> Encoding,
-    /// `bvhlab_layout::build`.
-    pub layout: fn(&LayoutSpec, &Bvh, &[Triangle]) -> Result<Layout, String>,
+    /// `bvhlab_layout::build_until` (None: no deadline).
+    pub layout:
+        fn(&LayoutSpec, &Bvh, &[Triangle], Option<std::time::Instant>) -> Result<Layout, String>,
 }
 
 impl Default for Ops {
@@ -94,7 +95,7 @@ impl Default for Ops {
             validate: bvhlab_bvh::validate,
             collapse: bvhlab_bvh::collapse::collapse,
             encode: bvhlab_morton::encode_cells,
-            layout: bvhlab_layout::build,
+            layout: bvhlab_layout::build_until,
         }
     }
 }
@@ -454,17 +455,21 @@ pub enum LayoutRequest {
     Auto(AutoSpec),
 }
 
-/// `auto:max_slowdown=X,rays=N`.
+/// `auto:max_slowdown=X,rays=N,budget=B`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AutoSpec {
     /// Largest accepted trace-time ratio against bvh2 of the same BVH (bvh2 always qualifies).
     pub max_slowdown: f64,
     /// Random rays the candidates are timed on.
     pub rays: u32,
+    /// Time the search may spend, in multiples of one bvh2 trace of those rays (timed at the
+    /// start of the search): once spent, no further candidate is built or timed.
+    pub budget: f64,
 }
 
 pub const AUTO_MAX_SLOWDOWN: f64 = 1.25;
 pub const AUTO_RAYS: u32 = 20_000;
+pub const AUTO_BUDGET: f64 = 10.0;
 /// Seed of the auto search's ray sample (part of its key through `rays`/the candidate list).
 pub const AUTO_SEED: u64 = 0xa070_1a70;
 /// Timed runs per candidate (each alternated with bvh2); the median is compared.
@@ -534,6 +539,7 @@ pub fn parse_layout(spec: &str) -> Result<LayoutRequest> {
     let mut auto = AutoSpec {
         max_slowdown: AUTO_MAX_SLOWDOWN,
         rays: AUTO_RAYS,
+        budget: AUTO_BUDGET,
     };
     for (k, v) in &given {
         match k.as_str() {
@@ -553,9 +559,17 @@ pub fn parse_layout(spec: &str) -> Result<LayoutRequest> {
                     )))
                 }
             },
+            "budget" => match v.parse::<f64>() {
+                Ok(x) if x.is_finite() && x > 0.0 => auto.budget = x,
+                _ => {
+                    return Err(Error::input(format!(
+                        "bad layout `{spec_t}`: budget must be a number > 0 (multiples of the bvh2 trace of the search's rays), got `{v}`"
+                    )))
+                }
+            },
             _ => {
                 return Err(Error::input(format!(
-                    "bad layout `{spec_t}`: layout `auto` has no parameter `{k}`; its parameters: max_slowdown, rays"
+                    "bad layout `{spec_t}`: layout `auto` has no parameter `{k}`; its parameters: max_slowdown, rays, budget"
                 )))
             }
         }
@@ -573,10 +587,14 @@ pub struct AutoCandidate {
     /// Candidate and bvh2 times of the alternated runs.
     pub seconds: Vec<f64>,
     pub bvh2_seconds: Vec<f64>,
-    /// median(seconds) / median(bvh2_seconds).
+    /// median(seconds) / median(bvh2_seconds) (bvh2 itself: 1, the baseline, not timed).
     pub slowdown: f64,
     /// Why the candidate could not be used (build error, invalid, hits differing from bvh2).
     pub error: Option<String>,
+    /// Seconds its build (and validation) took inside the search.
+    pub build_seconds: f64,
+    /// Why it was not built or not timed (None: it was fully measured, or is unusable).
+    pub skipped: Option<String>,
 }
 
 /// The auto search's decision, stored with the chosen layout (machine dependent: it depends on
@@ -590,6 +608,20 @@ pub struct AutoChoice {
     pub chosen: usize,
     /// Human-readable reason (the row's `layout_choice`).
     pub reason: String,
+    /// The budget in multiples of the bvh2 trace, that trace's seconds, the budget in seconds and
+    /// the seconds the search took (it can overrun by the one step that was running).
+    pub budget: f64,
+    pub bvh2_trace_seconds: f64,
+    pub budget_seconds: f64,
+    pub search_seconds: f64,
+    /// The budget ran out before every candidate that could have won was measured: the choice
+    /// is the best among those measured (`skipped` says which were not).
+    pub budget_cut: bool,
+    /// Labels of the candidates the budget cut (not built, or built but not timed).
+    pub skipped: Vec<String>,
+    /// The chosen layout's slowdown in the search exceeds max_slowdown (only possible for the
+    /// bvh2 fallback with max_slowdown < 1); the row re-judges it on its own measured slowdown.
+    pub over_limit: bool,
 }
 
 /// Summary of the layout stage (`layout/<key>.sum`): what a row needs.
@@ -694,14 +726,16 @@ mod tests {
             parse_layout("auto").unwrap(),
             LayoutRequest::Auto(AutoSpec {
                 max_slowdown: AUTO_MAX_SLOWDOWN,
-                rays: AUTO_RAYS
+                rays: AUTO_RAYS,
+                budget: AUTO_BUDGET,
             })
         );
         assert_eq!(
-            parse_layout("auto:max_slowdown=1.5,rays=500").unwrap(),
+            parse_layout("auto:max_slowdown=1.5,rays=500,budget=40").unwrap(),
             LayoutRequest::Auto(AutoSpec {
                 max_slowdown: 1.5,
-                rays: 500
+                rays: 500,
+                budget: 40.0,
             })
         );
         for (bad, needle) in [
@@ -713,6 +747,8 @@ mod tests {
             ("auto:max_slowdown=0", "max_slowdown"),
             ("auto:max_slowdown=nan", "max_slowdown"),
             ("auto:rays=5", "rays"),
+            ("auto:budget=0", "budget must be a number > 0"),
+            ("auto:budget=inf", "budget"),
             ("auto:chunk_bytes=64", "chunk_bytes"),
         ] {
             let e = parse_layout(bad).unwrap_err();

@@ -319,6 +319,22 @@ impl Store {
         ext: &str,
         repair: bool,
     ) -> Option<T> {
+        self.get_entry_with(stage, key, ext, &[], repair)
+    }
+
+    /// `get_entry`, and the entry's raw files `also` (e.g. the heat map `png` a measure summary
+    /// points to) must be listed by the manifest and match their blake3 too: a file the caller
+    /// will hand on (copied into a report) is checked before use like the artifact itself, and
+    /// one that a repair dropped from the manifest makes the entry a miss, so it is recomputed
+    /// rather than silently missing downstream.
+    pub fn get_entry_with<T: DeserializeOwned>(
+        &self,
+        stage: &str,
+        key: &Key,
+        ext: &str,
+        also: &[&str],
+        repair: bool,
+    ) -> Option<T> {
         let bad = |path: &Path, reason: &str| {
             if repair {
                 eprintln!(
@@ -374,6 +390,37 @@ impl Store {
                 "blake3 differs from its manifest (truncated, corrupt or foreign)",
             );
             return None;
+        }
+        for x in also {
+            let xpath = self.path(stage, key, x);
+            let Some(xwant) = m.files.get(*x) else {
+                if repair {
+                    eprintln!(
+                        "warning: cache entry {stage}/{} lost its {x} file (cache repair?); recomputing",
+                        key.hex()
+                    );
+                }
+                return None;
+            };
+            match fs::read(&xpath) {
+                Ok(b) if blake3::hash(&b).to_hex().as_str() == xwant => {}
+                Ok(_) => {
+                    bad(
+                        &xpath,
+                        "blake3 differs from its manifest (truncated, corrupt or foreign)",
+                    );
+                    return None;
+                }
+                Err(e) => {
+                    if repair {
+                        eprintln!(
+                            "warning: cache file {} listed by its manifest is unreadable ({e}); recomputing",
+                            xpath.display()
+                        );
+                    }
+                    return None;
+                }
+            }
         }
         match codec::decode(&bytes) {
             Ok(v) => Some(v),

@@ -121,7 +121,12 @@ fn test_code_build(boxes: &[Aabb], _: &[Vec3], s: Option<&SortedCodes>, _: &Reso
 
 /// Layout double: every layout is stored as a bvh2 (real flat BVH, real traversal) of the input
 /// BVH, or for the scene-only layouts (octrees) of one leaf over all triangles.
-fn test_layout(spec: &LayoutSpec, bvh: &Bvh, tris: &[Triangle]) -> Result<Layout, String> {
+fn test_layout(
+    spec: &LayoutSpec,
+    bvh: &Bvh,
+    tris: &[Triangle],
+    _deadline: Option<std::time::Instant>,
+) -> Result<Layout, String> {
     if bvhlab_layout::uses_bvh(&spec.name) {
         assert!(!bvh.nodes.is_empty(), "BVH layouts get the final BVH");
         return Ok(Layout::Bvh2(Bvh2::build(bvh)));

@@ -170,13 +170,36 @@ fn auto_with_thresholds_that_do_not_depend_on_timing() {
         "{}",
         slow.method
     );
-    // Everything qualifies: the smallest candidate wins.
+    // Everything qualifies (and the budget is no limit): the smallest candidate wins. Only
+    // candidates smaller than the best so far are timed (anytime search): their bytes decrease,
+    // the last one is the choice, every other one was skipped as unable to win.
     let any = run(
         &mut r,
-        &chain("binned-sah", Some("auto:max_slowdown=1e9,rays=500"), true),
+        &chain(
+            "binned-sah",
+            Some("auto:max_slowdown=1e9,rays=500,budget=1e9"),
+            true,
+        ),
     );
     let s = summary(&r, &any);
     let c = s.choice.as_ref().unwrap();
+    assert!(!c.budget_cut && c.skipped.is_empty(), "{:?}", c.skipped);
+    assert_eq!(any.auto_budget_cut, Some(false));
+    assert_eq!(any.auto_over_limit, Some(false));
+    let timed: Vec<usize> = (0..c.candidates.len())
+        .filter(|&i| !c.candidates[i].seconds.is_empty())
+        .collect();
+    assert_eq!(timed.last(), Some(&c.chosen), "{:?}", c.candidates);
+    assert!(timed
+        .windows(2)
+        .all(|w| c.candidates[w[1]].total_bytes < c.candidates[w[0]].total_bytes));
+    for (i, x) in c.candidates.iter().enumerate() {
+        if !timed.contains(&i) && x.layout != "bvh2" {
+            let why = x.skipped.as_deref().unwrap_or("");
+            assert!(why.starts_with("not smaller than"), "{x:?}");
+            assert!(x.total_bytes >= c.candidates[c.chosen].total_bytes);
+        }
+    }
     assert_eq!(
         c.candidates.len(),
         bvhlab_pipeline::stages::auto_candidates().len()
@@ -202,10 +225,83 @@ fn auto_with_thresholds_that_do_not_depend_on_timing() {
     let n = r.counts.computed;
     let again = run(
         &mut Runner::new(Store::open(dir.path()).unwrap()),
-        &chain("binned-sah", Some("auto:max_slowdown=1e9,rays=500"), true),
+        &chain(
+            "binned-sah",
+            Some("auto:max_slowdown=1e9,rays=500,budget=1e9"),
+            true,
+        ),
     );
     assert_eq!(again.layout_choice, any.layout_choice);
     assert_eq!(r.counts.computed, n);
+}
+
+/// Issue 15: the search stops when its budget is spent and says so; a choice above its limit is
+/// flagged (the bvh2 fallback under a limit below 1 is the case that does not depend on timing).
+#[test]
+fn auto_budget_and_over_limit_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = Runner::new(Store::open(dir.path()).unwrap());
+    // A budget far below one trace: only bvh2 (the fallback) is built, everything else is cut.
+    let cut = run(
+        &mut r,
+        &chain(
+            "binned-sah",
+            Some("auto:max_slowdown=1e9,rays=500,budget=0.000001"),
+            true,
+        ),
+    );
+    let s = summary(&r, &cut);
+    let c = s.choice.as_ref().unwrap();
+    assert!(c.budget_cut);
+    assert_eq!(cut.auto_budget_cut, Some(true));
+    assert_eq!(cut.layout.as_deref(), Some("bvh2"));
+    assert_eq!(c.skipped.len(), c.candidates.len() - 1, "{:?}", c.skipped);
+    assert!(c.candidates[1..].iter().all(|x| x
+        .skipped
+        .as_deref()
+        .is_some_and(|w| w.starts_with("budget"))));
+    assert!(c.budget_seconds > 0.0 && c.budget_seconds < 1e-3);
+    let why = cut.layout_choice.clone().unwrap();
+    let n = c.candidates.len() - 1;
+    assert!(
+        why.contains(&format!("BUDGET CUT: {n} candidate(s) not measured")),
+        "{why}"
+    );
+    assert!(cut.method.ends_with(",budget=0.000001"), "{}", cut.method);
+    // Nothing is as fast as 10^-4 of bvh2: the bvh2 fallback (slowdown 1) is over the limit.
+    let over = run(
+        &mut r,
+        &chain(
+            "binned-sah",
+            Some("auto:max_slowdown=0.0001,rays=500,budget=1e9"),
+            true,
+        ),
+    );
+    let s = summary(&r, &over);
+    let c = s.choice.as_ref().unwrap();
+    assert!(c.over_limit && !c.budget_cut);
+    assert_eq!(over.auto_over_limit, Some(true));
+    assert_eq!(over.auto_max_slowdown, Some(0.0001));
+    assert!(
+        over.layout_choice
+            .as_deref()
+            .unwrap()
+            .contains("OVER LIMIT"),
+        "{:?}",
+        over.layout_choice
+    );
+    // Without rays the row judges by the search's own slowdown; rows without auto carry nothing.
+    let no_rays = run(
+        &mut r,
+        &chain(
+            "binned-sah",
+            Some("auto:max_slowdown=0.0001,rays=500,budget=1e9"),
+            false,
+        ),
+    );
+    assert_eq!(no_rays.auto_over_limit, Some(true));
+    let fixed = run(&mut r, &chain("binned-sah", Some("bvh2"), true));
+    assert_eq!((fixed.auto_over_limit, fixed.auto_budget_cut), (None, None));
 }
 
 #[test]

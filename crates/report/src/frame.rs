@@ -113,6 +113,12 @@ pub fn write_parquet(df: &mut DataFrame, path: &Path) -> Result<(), String> {
     })
 }
 
+/// Rows of an existing `results.parquet` (None: no readable report there).
+pub fn parquet_rows(path: &Path) -> Option<usize> {
+    let f = std::fs::File::open(path).ok()?;
+    ParquetReader::new(f).finish().ok().map(|df| df.height())
+}
+
 pub fn write_csv(df: &mut DataFrame, path: &Path) -> Result<(), String> {
     write_atomic_with(path, |f| {
         CsvWriter::new(f).include_header(true).finish(df).map_err(|e| e.to_string())

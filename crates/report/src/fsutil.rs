@@ -11,6 +11,40 @@ pub fn tmp_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".tmp-{}-{name}", std::process::id()))
 }
 
+/// Whether process `pid` runs on this machine (Linux `/proc`; elsewhere assumed alive).
+fn pid_alive(pid: u32) -> bool {
+    if !Path::new("/proc/self").exists() {
+        return true;
+    }
+    Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// Removes the `.tmp-<pid>-*` files a killed writer left in `dir` and its immediate
+/// subdirectories (the report's plots/ and heatmaps/): nothing else would ever remove them. Files
+/// of a live writer (another report being written right now, or this process) are kept. Returns
+/// how many were removed.
+pub fn remove_stale_temps(dir: &Path) -> usize {
+    let mut removed = 0;
+    let mut dirs = vec![dir.to_path_buf()];
+    if let Ok(rd) = std::fs::read_dir(dir) {
+        dirs.extend(rd.flatten().map(|e| e.path()).filter(|p| p.is_dir()));
+    }
+    for d in dirs {
+        let Ok(rd) = std::fs::read_dir(&d) else { continue };
+        for e in rd.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let Some(rest) = name.strip_prefix(".tmp-") else { continue };
+            let pid = rest.split('-').next().and_then(|p| p.parse::<u32>().ok());
+            // A name we cannot read a pid from was not written by us: leave it.
+            let Some(pid) = pid else { continue };
+            if pid != std::process::id() && !pid_alive(pid) && std::fs::remove_file(e.path()).is_ok() {
+                removed += 1;
+            }
+        }
+    }
+    removed
+}
+
 pub fn commit(tmp: &Path, path: &Path) -> Result<(), String> {
     std::fs::rename(tmp, path).map_err(|e| {
         let _ = std::fs::remove_file(tmp);
@@ -83,5 +117,35 @@ impl Stems {
             n += 1;
         }
         stem
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stale_temps_of_dead_writers_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let plots = dir.path().join("plots");
+        std::fs::create_dir(&plots).unwrap();
+        // A pid that cannot exist (above the kernel's pid_max limit of 2^22).
+        let dead = 4_194_399u32;
+        let me = std::process::id();
+        for (d, name) in [
+            (dir.path(), format!(".tmp-{dead}-index.html")),
+            (plots.as_path(), format!(".tmp-{dead}-pareto.png")),
+            (dir.path(), format!(".tmp-{me}-results.csv")),
+            (dir.path(), ".tmp-notapid-x".to_string()),
+            (dir.path(), "index.html".to_string()),
+        ] {
+            std::fs::write(d.join(name), b"").unwrap();
+        }
+        assert_eq!(remove_stale_temps(dir.path()), 2);
+        assert!(!dir.path().join(format!(".tmp-{dead}-index.html")).exists());
+        assert!(!plots.join(format!(".tmp-{dead}-pareto.png")).exists());
+        for keep in [format!(".tmp-{me}-results.csv"), ".tmp-notapid-x".into(), "index.html".into()] {
+            assert!(dir.path().join(&keep).exists(), "{keep}");
+        }
     }
 }

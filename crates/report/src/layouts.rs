@@ -1185,21 +1185,68 @@ fn auto_table(cs: &[Case]) -> String {
     }
     let mut h = String::from(
         "<h3>layout=auto: the choice per scene</h3>\n<p>The smallest layout within the slowdown limit, from a search \
-         measured on a sample of rays; the reason is the search's own account (layout_choice).</p>\n<table><tr>\
-         <th>case</th><th>chosen layout</th><th>params</th><th>topology B/tri</th><th>total B/tri</th><th>slowdown</th>\
-         <th>reason</th></tr>\n",
+         measured on a sample of random rays within a time budget (multiples of one bvh2 trace of them); the reason \
+         is the search's own account (layout_choice). The slowdown column is this row's own measurement (its ray \
+         set): a choice above its limit there, or cut short by the budget, is marked.</p>\n",
     );
-    for (c, r) in autos {
+    // Issue 15: choices above their limit went unflagged; they are listed before the table.
+    let over: Vec<String> = autos
+        .iter()
+        .filter(|(_, r)| r.auto_over_limit == Some(true))
+        .map(|(c, r)| {
+            format!(
+                "{}: {} {} at slowdown {} &gt; max_slowdown {}",
+                escape(&c.label),
+                escape(r.layout.as_deref().unwrap_or("")),
+                escape(r.layout_params.as_deref().unwrap_or("")),
+                num(r.slowdown),
+                num(r.auto_max_slowdown)
+            )
+        })
+        .collect();
+    if !over.is_empty() {
         let _ = writeln!(
             h,
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>\
-             <td>{}</td></tr>",
+            "<p class=\"warn\"><b>Warning: {} layout=auto choice(s) exceed their max_slowdown in this report's own \
+             measurement</b> (the search judged them on its random-ray sample; other rays or machine load differ): {}</p>",
+            over.len(),
+            over.join("; ")
+        );
+    }
+    let cut = autos.iter().filter(|(_, r)| r.auto_budget_cut == Some(true)).count();
+    if cut > 0 {
+        let _ = writeln!(
+            h,
+            "<p class=\"warn\">{cut} layout=auto search(es) ran out of their time budget before measuring every \
+             candidate that could have won (raise auto:budget=B); their choice is the best of those measured.</p>"
+        );
+    }
+    h.push_str(
+        "<table><tr><th>case</th><th>chosen layout</th><th>params</th><th>topology B/tri</th><th>total B/tri</th>\
+         <th>slowdown</th><th>max_slowdown</th><th>budget cut</th><th>reason</th></tr>\n",
+    );
+    for (c, r) in autos {
+        let flag = |b: Option<bool>, yes: &str| match b {
+            Some(true) => format!("<td class=\"warn\"><b>{yes}</b></td>"),
+            Some(false) => "<td>no</td>".to_string(),
+            None => "<td></td>".to_string(),
+        };
+        let slowdown = if r.auto_over_limit == Some(true) {
+            format!("<td class=\"n warn\"><b>{} over limit</b></td>", num(r.slowdown))
+        } else {
+            format!("<td class=\"n\">{}</td>", num(r.slowdown))
+        };
+        let _ = writeln!(
+            h,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>{slowdown}\
+             <td class=\"n\">{}</td>{}<td>{}</td></tr>",
             escape(&c.label),
             escape(r.layout.as_deref().unwrap_or("")),
             escape(r.layout_params.as_deref().unwrap_or("")),
             num(r.topology_bytes_per_triangle),
             num(r.total_bytes_per_triangle),
-            num(r.slowdown),
+            num(r.auto_max_slowdown),
+            flag(r.auto_budget_cut, "yes"),
             escape(r.layout_choice.as_deref().unwrap_or(""))
         );
     }

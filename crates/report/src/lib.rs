@@ -155,6 +155,13 @@ fn incomplete_notice(missing: &[String]) -> String {
     h
 }
 
+/// Rows of the report already in `out_dir` (its results.parquet), if there is a readable one: a
+/// sweep compares it with the rows it is about to write (issue 15: `--report-only` on an empty
+/// cache replaced a good report with an empty one).
+pub fn existing_rows(out_dir: &Path) -> Option<usize> {
+    frame::parquet_rows(&out_dir.join("results.parquet"))
+}
+
 /// `write_report` with options (an incomplete report's missing chains).
 pub fn write_report_with(
     out_dir: &Path,
@@ -165,6 +172,11 @@ pub fn write_report_with(
 ) -> Result<PathBuf, String> {
     let plots_dir = out_dir.join(PLOTS_DIR);
     std::fs::create_dir_all(&plots_dir).map_err(|e| format!("{}: {e}", plots_dir.display()))?;
+    // A run killed while writing left `.tmp-<pid>-*` files; they are never renamed into place.
+    let stale = fsutil::remove_stale_temps(out_dir);
+    if stale > 0 {
+        eprintln!("note: removed {stale} temporary file(s) of a killed report writer from {}", out_dir.display());
+    }
 
     let mut df = frame::to_dataframe(rows)?;
     frame::write_parquet(&mut df, &out_dir.join("results.parquet"))?;

@@ -219,3 +219,30 @@ fn missing_fields_single_layout_and_auto() {
     let html = std::fs::read_to_string(write_report(dir.path(), "plain", &[plain], None).unwrap()).unwrap();
     assert!(!html.contains("Compressed layouts"));
 }
+
+/// Issue 15: an auto choice above its limit in its own row, or cut short by the budget, is
+/// flagged in the layouts section (it used to be listed like any other).
+#[test]
+fn auto_over_limit_and_budget_cut_are_flagged() {
+    let mut ok = row("y", &AGREEING[1]);
+    ok.layout_choice = Some("qbvh: within".into());
+    ok.auto_max_slowdown = Some(1.5);
+    ok.auto_budget_cut = Some(false);
+    ok.auto_over_limit = Some(false);
+    let dir = tempfile::tempdir().unwrap();
+    let html = std::fs::read_to_string(write_report(dir.path(), "l", &[ok.clone()], None).unwrap()).unwrap();
+    assert!(!html.contains("exceed their max_slowdown"), "no warning without a flagged row");
+    assert!(!html.contains("ran out of their time budget"));
+    let mut over = row("z", &AGREEING[1]);
+    over.slowdown = Some(1.8);
+    over.layout_choice = Some("qbvh: within on the search's rays".into());
+    over.auto_max_slowdown = Some(1.5);
+    over.auto_budget_cut = Some(true);
+    over.auto_over_limit = Some(true);
+    let dir = tempfile::tempdir().unwrap();
+    let html = std::fs::read_to_string(write_report(dir.path(), "l", &[ok, over], None).unwrap()).unwrap();
+    assert!(html.contains("Warning: 1 layout=auto choice(s) exceed their max_slowdown"), "{html}");
+    assert!(html.contains("at slowdown 1.8") && html.contains("max_slowdown 1.5"), "{html}");
+    assert!(html.contains("1 layout=auto search(es) ran out of their time budget"), "{html}");
+    assert!(html.contains("over limit</b>"), "{html}");
+}
