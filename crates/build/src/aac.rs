@@ -174,11 +174,12 @@ impl<'a> Input<'a> {
 
     #[inline]
     fn prim_box(&self, i: usize) -> BoxA {
-        // Clamped to +-1e38 (NaN becomes -1e38) and max >= min: extents are finite and
-        // non-negative, so no distance is ever NaN (inf * 0, inf - inf) and the hot loops need no
-        // NaN test. Only non-finite, inverted or absurdly large boxes change.
+        // Clamped to +-f32::MAX (NaN becomes -f32::MAX) and max >= min: coordinates are finite and
+        // extents non-negative, so no distance is ever NaN (inf * 0, inf - inf) and the hot loops
+        // need no NaN test. Only non-finite and inverted boxes change (the clamp was 1e38, which
+        // moved finite coordinates up to 3.4e38 and wrecked trees there: issue 15).
         let b = &self.boxes[self.order[i] as usize];
-        let lim = Vec3A::splat(1e38);
+        let lim = Vec3A::splat(f32::MAX);
         let min = Vec3A::from(b.min).max(-lim).min(lim);
         let max = Vec3A::from(b.max).max(-lim).min(lim).max(min);
         // Then scaled by a power of two (exact): union areas of the scaled boxes cannot overflow or

@@ -415,8 +415,15 @@ fn near_f32_max_costs_are_finite() {
     }
     assert!(bad.is_empty(), "{}", bad.join("\n"));
     let unit = signatures_with(&b.tris, DECIMAL_OPTS);
-    for m in ["sweep-sah []", "binned-sah []", "bonsai []"] {
-        let (x, y) = (unit[m].sah().unwrap(), sigs[m].sah().unwrap());
-        assert!(rel(x, y) <= 0.01, "{m}: {x} at unit size, {y} near f32::MAX");
+    // Every builder keeps its quality (3 %: aac and ploc move that much under rounding alone).
+    let mut worse = Vec::new();
+    for (m, x) in &unit {
+        let is_builder = !m.starts_with("layout") && !m.contains(" <- ") && !m.ends_with(" raw");
+        if let (true, Some(x), Some(y)) = (is_builder, x.sah(), sigs.get(m).and_then(Sig::sah)) {
+            if !(rel(x, y) <= 0.03) {
+                worse.push(format!("{m}: {x:.3} at unit size, {y:.3} near f32::MAX"));
+            }
+        }
     }
+    assert!(worse.is_empty(), "{}", worse.join("\n"));
 }
