@@ -43,19 +43,22 @@ impl SweepRef {
 struct SweepSplit {
     axis: usize,
     n_left: usize,
-    /// `SA_L * n_L + SA_R * n_R` (half areas, f64: see `BoxA::half_area`).
-    cost: f64,
+    /// `SA_L * n_L + SA_R * n_R` (half areas scaled by `Sweeper::scale`: see
+    /// `BoxA::half_area_scaled`).
+    cost: f32,
 }
 
 /// Builder state: the three presorted arrays and scratch buffers, allocated once per build.
 struct Sweeper {
     sorted: [Vec<SweepRef>; 3],
     /// Right-sweep half areas: `right_area[i]` is the area of elements `i..` of the current range.
-    right_area: Vec<f64>,
+    right_area: Vec<f32>,
     /// Scratch for the stable partition (right part).
     tmp: Vec<SweepRef>,
     /// Side flag per primitive index (thesis 3.3.1).
     is_left: Vec<bool>,
+    /// `boxa::pow2_for_max` of the items: areas are `BoxA::half_area_scaled` by it.
+    scale: Vec3A,
 }
 
 pub fn build(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> Bvh {
@@ -174,11 +177,19 @@ impl Sweeper {
                 })
                 .collect()
         });
+        let first: &Vec<SweepRef> = &sorted[0];
+        let m = first
+            .iter()
+            .map(|p| p.min.abs().max(p.max.abs()).max_element())
+            .filter(|m| m.is_finite())
+            .fold(0.0f32, f32::max);
+        let scale = Vec3A::splat(crate::boxa::pow2_for_max(m));
         Sweeper {
             sorted,
             right_area: vec![0.0; n],
             tmp: Vec::with_capacity(n),
             is_left: vec![false; n],
+            scale,
         }
     }
 
@@ -191,7 +202,7 @@ impl Sweeper {
         let mut best = SweepSplit {
             axis: 0,
             n_left: n / 2,
-            cost: f64::INFINITY,
+            cost: f32::INFINITY,
         };
         for axis in 0..3 {
             let a = &self.sorted[axis][r.begin..r.end];
@@ -199,7 +210,7 @@ impl Sweeper {
             let mut acc = BoxA::EMPTY;
             for i in (1..n).rev() {
                 acc.grow(a[i].min(), a[i].max());
-                right_area[i] = acc.half_area();
+                right_area[i] = acc.half_area_scaled(self.scale);
             }
             let mut acc = BoxA::EMPTY;
             // Weighted: integer prefix sums (exact), converted per candidate.
@@ -213,10 +224,10 @@ impl Sweeper {
                 acc.grow(a[i].min(), a[i].max());
                 let cost = if WEIGHTED {
                     w_l += a[i].w as u64;
-                    acc.half_area() * w_l as f64 + right_area[i + 1] * (total - w_l) as f64
+                    acc.half_area_scaled(self.scale) * w_l as f32 + right_area[i + 1] * (total - w_l) as f32
                 } else {
-                    let n_l = (i + 1) as f64;
-                    acc.half_area() * n_l + right_area[i + 1] * (n as f64 - n_l)
+                    let n_l = (i + 1) as f32;
+                    acc.half_area_scaled(self.scale) * n_l + right_area[i + 1] * (n as f32 - n_l)
                 };
                 if cost < best.cost {
                     best = SweepSplit {
@@ -243,7 +254,8 @@ impl Sweeper {
         // The weighted sweep only runs with single-item leaves (no leaf test below).
         debug_assert!(!WEIGHTED || cfg.forced_single());
         let best = self.find_split::<WEIGHTED>(r);
-        if !cfg.forced_single() && cfg.sah_prefers_leaf(n, r.bounds.half_area(), best.cost) {
+        let node_area = r.bounds.half_area_scaled(self.scale) as f64;
+        if !cfg.forced_single() && cfg.sah_prefers_leaf(n, node_area, best.cost as f64) {
             return None;
         }
         let mid = r.begin + best.n_left;
