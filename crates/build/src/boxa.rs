@@ -31,25 +31,6 @@ impl BoxA {
             max: self.max.max(o.max),
         }
     }
-    /// Half the surface area in f64; 0 for empty boxes. SAH comparisons are scale-invariant, so the
-    /// builders use half areas throughout and save a multiply per candidate. f64 from the
-    /// subtraction on (`Aabb::area` says why): f32 costs overflowed from coordinates of 1e17 up and
-    /// underflowed below 1e-19, making every split look equally infinite or free (issue 15).
-    ///
-    /// The extent is subtracted in f32 (one SIMD op; its rounding scales exactly with the scene by
-    /// 2^k, like the products) and only the products are f64: three conversions instead of six kept
-    /// the full-sweep build within a few percent of the f32 version. A box spanning more than
-    /// f32::MAX (the subtraction overflows) takes the exact f64 difference instead.
-    #[inline(always)]
-    pub fn half_area(&self) -> f64 {
-        let e = (self.max - self.min).max(Vec3A::ZERO);
-        let e = if e.is_finite() {
-            e.as_dvec3()
-        } else {
-            (self.max.as_dvec3() - self.min.as_dvec3()).max(glam::DVec3::ZERO)
-        };
-        e.x * e.y + e.y * e.z + e.z * e.x
-    }
     /// Half the surface area of the box times `s` (a power of two from [`pow2_normalizer`] that
     /// brings every coordinate of the build into [-1, 1]), in f32. The full sweep's hot loop: the
     /// scaled areas are at most 12, so they and their cost sums (times primitive counts) cannot
