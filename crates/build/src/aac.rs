@@ -196,7 +196,7 @@ impl<'a> Input<'a> {
 /// any comparison). Never NaN for the clamped boxes of [`Input::prim_box`] (at most infinite).
 #[inline(always)]
 fn dist(a: &BoxA, b: &BoxA) -> f32 {
-    // The union of two non-empty boxes has no negative extent: no clamp needed (BoxA::half_area).
+    // The union of two non-empty boxes has no negative extent: no clamp needed (as in BoxA::half_area_scaled).
     let e = a.max.max(b.max) - a.min.min(b.min);
     e.x * e.y + e.y * e.z + e.z * e.x
 }

@@ -25,15 +25,8 @@ const GENERATED: &[&str] = &[
     "gen:hairball:n=300",
 ];
 
-const OPTS: Opts = Opts {
-    all_encoders: true,
-    variants: true,
-    optimizers: true,
-    max_passes: 3,
-    layouts: true,
-    collapse: true,
-    skip_builders: &[],
-};
+/// The whole matrix (every encoder and parameter variant, optimizers capped at 3 passes, layouts).
+const OPTS: Opts = Opts::FULL;
 
 /// The scene mapped into [1, 1.999]^3 with one uniform factor (shape kept): every coordinate then
 /// has exponent 0, and times 2^k it stays a normal f32 for k in -126..=127, so scaling is exact.
