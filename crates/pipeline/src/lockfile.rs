@@ -17,10 +17,11 @@
 //!   host is taken over at once), or when its record has not changed for `stale` as measured by
 //!   the waiter's own monotonic clock. Clocks of different hosts are never compared (skew), and
 //!   mtimes are not used (NFS attribute caching can hide a change for a minute).
-//! - **Takeover**: rename the stale file aside to a name only this waiter uses (atomic: of several
-//!   waiters exactly one wins), re-read it and delete it if it still holds the stale record, then
-//!   try to create again. If the owner beat in between, it is restored with `hard_link` (which
-//!   fails, leaving the newer lock alone, if someone created one meanwhile).
+//! - **Takeover**: take the takeover lock `<lock>.takeover` (created the same way), re-read the
+//!   lock and delete it if it still holds the stale record, release, then try to create again.
+//!   Only takeover-lock holders delete another's lock, so the lock cannot be replaced between the
+//!   re-read and the delete. A takeover lock left by a waiter that died holding it is itself
+//!   stale by the same rules and removed by rename-aside, re-read and restore-if-changed.
 //! - **Release**: remove the file if it still holds our token.
 //!
 //! A lock lost to a takeover (an owner frozen for longer than `stale`, e.g. SIGSTOP or a hung NFS
@@ -293,49 +294,83 @@ struct Observed {
 }
 
 fn is_stale(obs: &Observed, timing: &LockTiming) -> bool {
-    if let Some(r) = Record::parse(&obs.bytes) {
-        if r.host == host_name() && !pid_alive(r.pid) {
-            return true;
-        }
-    }
-    obs.since.elapsed() >= timing.stale
+    dead_here(&obs.bytes) || obs.since.elapsed() >= timing.stale
 }
 
-/// Renames a stale lock aside and removes it if it still holds what was observed (see the module
-/// doc). Returns whether the stale lock is gone.
-fn take_over(path: &Path, observed: &[u8], token: &str) -> bool {
-    let aside = path.with_file_name(format!(
-        "{}.stale-{token}",
+fn sibling(path: &Path, suffix: &str) -> PathBuf {
+    path.with_file_name(format!(
+        "{}.{suffix}",
         path.file_name()
             .map(|n| n.to_string_lossy())
             .unwrap_or_default()
-    ));
+    ))
+}
+
+/// Renames a stale file aside and removes it if it still holds what was observed; restores it
+/// otherwise. Used only for the takeover lock, whose holder keeps it for microseconds: the
+/// restore leaves a moment in which the name is free, harmless only for a lock so rarely stale.
+fn remove_if_unchanged(path: &Path, observed: &[u8], token: &str) -> bool {
+    let aside = sibling(path, &format!("stale-{token}"));
     if fs::rename(path, &aside).is_err() {
         return false; // another waiter took it, or the owner released it
     }
-    let now = fs::read(&aside).unwrap_or_default();
-    if now == observed {
+    if fs::read(&aside).unwrap_or_default() == observed {
         let _ = fs::remove_file(&aside);
-        let who = Record::parse(&now)
-            .map(|r| format!("host {} pid {}", r.host, r.pid))
-            .unwrap_or_else(|| "an unreadable record".into());
-        eprintln!(
-            "note: took over the stale compute lock {} ({who})",
-            path.display()
-        );
         true
     } else {
-        // The owner beat after we looked: put its lock back unless a new one exists already.
         let _ = fs::hard_link(&aside, path);
         let _ = fs::remove_file(&aside);
         false
     }
 }
 
+enum TakeOver {
+    /// The stale lock is gone (or was already).
+    Gone,
+    /// The lock changed since it was observed: not stale after all, or a new owner.
+    Changed,
+    /// Another waiter holds the takeover lock; its record as read.
+    Busy(Vec<u8>),
+}
+
+/// Removes a stale lock under the takeover lock `<lock>.takeover` (see the module doc). Renaming
+/// the lock itself aside is not enough: a waiter whose observation is a moment old can rename a
+/// new owner's lock instead of the stale one, and restoring it leaves the name free for a third
+/// (found by `takeover_of_one_stale_lock_is_exclusive`: two owners at once, about 1 run in 20).
+fn take_over(path: &Path, observed: &[u8]) -> TakeOver {
+    let tk = sibling(path, "takeover");
+    let guard = match create(&tk, &new_token()) {
+        Ok(Some(g)) => g,
+        Ok(None) => return TakeOver::Busy(fs::read(&tk).unwrap_or_default()),
+        Err(_) => return TakeOver::Changed,
+    };
+    // Holding the takeover lock, nobody else removes the lock: it can only be created (if it is
+    // absent) or rewritten by its owner (a heartbeat, which makes it differ from `observed`).
+    let r = match fs::read(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => TakeOver::Gone,
+        Ok(now) if now == observed => {
+            let _ = fs::remove_file(path);
+            let who = Record::parse(&now)
+                .map(|r| format!("host {} pid {}", r.host, r.pid))
+                .unwrap_or_else(|| "an unreadable record".into());
+            eprintln!(
+                "note: took over the stale compute lock {} ({who})",
+                path.display()
+            );
+            TakeOver::Gone
+        }
+        _ => TakeOver::Changed,
+    };
+    drop(guard);
+    r
+}
+
 /// Takes the lock at `path`, waiting (and taking over stale locks) as long as needed.
 pub fn acquire(path: &Path, token: &str, timing: &LockTiming) -> std::io::Result<Guard> {
     let mut backoff = Duration::from_millis(10);
     let mut obs: Option<Observed> = None;
+    // The takeover lock as last seen busy: a waiter that died holding it makes it stale too.
+    let mut obs_tk: Option<Observed> = None;
     loop {
         if let Some(g) = create(path, token)? {
             return Ok(g);
@@ -346,25 +381,46 @@ pub fn acquire(path: &Path, token: &str, timing: &LockTiming) -> std::io::Result
                 continue;
             }
             Err(e) => return Err(e),
-            Ok(bytes) => {
-                if obs.as_ref().is_none_or(|o| o.bytes != bytes) {
-                    obs = Some(Observed {
-                        bytes,
-                        since: Instant::now(),
-                    });
-                }
-            }
+            Ok(bytes) => observe(&mut obs, bytes),
         }
         if let Some(o) = &obs {
             if is_stale(o, timing) {
-                take_over(path, &o.bytes, token);
-                obs = None;
-                continue;
+                match take_over(path, &o.bytes) {
+                    TakeOver::Gone | TakeOver::Changed => {
+                        obs = None;
+                        obs_tk = None;
+                        continue;
+                    }
+                    TakeOver::Busy(b) => {
+                        observe(&mut obs_tk, b);
+                        if let Some(t) = &obs_tk {
+                            if is_stale(t, timing) {
+                                remove_if_unchanged(&sibling(path, "takeover"), &t.bytes, token);
+                                obs_tk = None;
+                                continue;
+                            }
+                        }
+                    }
+                }
             }
         }
         std::thread::sleep(backoff);
         backoff = (backoff * 2).min(Duration::from_millis(500));
     }
+}
+
+/// Records what a waiter read, restarting the silence clock when it changed.
+fn observe(obs: &mut Option<Observed>, bytes: Vec<u8>) {
+    if obs.as_ref().is_none_or(|o| o.bytes != bytes) {
+        *obs = Some(Observed {
+            bytes,
+            since: Instant::now(),
+        });
+    }
+}
+
+fn dead_here(bytes: &[u8]) -> bool {
+    Record::parse(bytes).is_some_and(|r| r.host == host_name() && !pid_alive(r.pid))
 }
 
 /// One attempt: Some(guard) if the lock was free (or held by a dead process of this host, taken
@@ -376,14 +432,18 @@ pub fn try_acquire(path: &Path, token: &str) -> std::io::Result<Option<Guard>> {
     let Ok(bytes) = fs::read(path) else {
         return create(path, token);
     };
-    match Record::parse(&bytes) {
-        Some(r) if r.host == host_name() && !pid_alive(r.pid) => {
-            if take_over(path, &bytes, token) {
-                return create(path, token);
+    if !dead_here(&bytes) {
+        return Ok(None);
+    }
+    match take_over(path, &bytes) {
+        TakeOver::Gone => create(path, token),
+        TakeOver::Changed => Ok(None),
+        TakeOver::Busy(b) => {
+            if dead_here(&b) {
+                remove_if_unchanged(&sibling(path, "takeover"), &b, token);
             }
             Ok(None)
         }
-        _ => Ok(None),
     }
 }
 
@@ -581,6 +641,30 @@ mod tests {
         assert!(!p.exists());
         let leftovers: Vec<_> = fs::read_dir(d.path()).unwrap().flatten().collect();
         assert!(leftovers.is_empty(), "no .stale- files left: {leftovers:?}");
+    }
+
+    #[test]
+    fn takeover_lock_left_by_a_dead_waiter_is_removed() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("x.lock");
+        let dead = |token: &str| Record {
+            host: host_name().into(),
+            pid: 4_999_999,
+            token: token.into(),
+            beat: 0,
+        };
+        fs::write(&p, dead("owner").encode()).unwrap();
+        fs::write(sibling(&p, "takeover"), dead("waiter").encode()).unwrap();
+        // One try finds the takeover lock busy and removes it (its holder is dead); the next
+        // takes the lock over.
+        assert!(try_acquire(&p, &new_token()).unwrap().is_none());
+        assert!(!sibling(&p, "takeover").exists());
+        let g = try_acquire(&p, &new_token()).unwrap().expect("taken over");
+        drop(g);
+        let g = acquire(&p, &new_token(), &fast()).unwrap();
+        drop(g);
+        let left: Vec<_> = fs::read_dir(d.path()).unwrap().flatten().collect();
+        assert!(left.is_empty(), "{left:?}");
     }
 
     #[test]

@@ -810,17 +810,19 @@ impl Store {
                     .file_name()
                     .map(|n| n.to_string_lossy().to_string())
                     .unwrap_or_default();
-                if name.ends_with(".lock") {
+                if name.ends_with(".lock") || name.ends_with(".lock.takeover") {
                     // Taken (and so removed) only if no live process holds it.
                     if let Ok(Some(g)) = lockfile::try_acquire(&f, &self.token) {
                         drop(g);
                         removed_locks += 1;
                     }
-                } else if name.contains(".lock.stale-") || name.contains(".lock.new-") {
+                } else if name.contains(".stale-") || name.contains(".new-") {
                     // Leftovers of a process killed while taking or taking over a lock: removed
                     // once their writer is gone (its token names host tag and pid) or a day old.
-                    let token = name.rsplit_once(".lock.").map(|(_, t)| t).unwrap_or("");
-                    let token = token.split_once('-').map(|(_, t)| t).unwrap_or("");
+                    let token = [".stale-", ".new-"]
+                        .iter()
+                        .find_map(|m| name.rsplit_once(m).map(|(_, t)| t))
+                        .unwrap_or("");
                     let mut parts = token.splitn(3, '-');
                     let (tag, pid) = (
                         parts.next(),
