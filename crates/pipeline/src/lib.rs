@@ -20,6 +20,8 @@ pub mod sweep;
 
 /// The layout crate, for callers listing layouts and their parameters (the CLI).
 pub use bvhlab_layout;
+/// Step count at which heat maps saturate (the report draws their colour scale).
+pub use bvhlab_trace::heatmap::HEAT_MAX_STEPS;
 pub use error::{Error, Result};
 pub use experiment::Experiment;
 pub use key::Key;

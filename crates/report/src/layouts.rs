@@ -1311,5 +1311,6 @@ pub(crate) fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<
             .into(),
         plots,
         extra,
+        open: false,
     })
 }

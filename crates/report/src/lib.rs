@@ -9,16 +9,16 @@ pub mod layouts;
 mod optimization;
 pub mod plots;
 pub mod reference;
+pub mod sections;
 mod sweeps;
 
 pub use plots::pareto::pareto_front;
 
 use bvhlab_pipeline::ResultRow;
 use fsutil::Stems;
-use html::{Heatmap, Page, Section};
-use plots::bars::{Bar, BarsFigure, Panel};
-use plots::pareto::{ParetoFigure, ParetoPoint};
 use plots::reference::ReferenceFigure;
+use sections::summary::Chip;
+use sections::{Heatmap, Page, Section};
 use plots::{render, Plot};
 use std::path::{Path, PathBuf};
 
@@ -182,9 +182,6 @@ pub fn write_report_with(
     frame::write_parquet(&mut df, &out_dir.join("results.parquet"))?;
     frame::write_csv(&mut df, &out_dir.join("results.csv"))?;
 
-    let methods = unique(rows.iter().map(|r| r.method.as_str()));
-    let method_index = |m: &str| methods.iter().position(|x| *x == m).unwrap_or(0);
-    let scenes = unique(rows.iter().map(|r| r.scene.as_str()));
     let mut problems = Vec::new();
     let mut stems = Stems::default();
     let mut plot = |fig: &dyn DynFigure, stem: &str, title: &str, problems: &mut Vec<String>| {
@@ -193,6 +190,12 @@ pub fn write_report_with(
             Ok(mut p) => {
                 p.png = format!("{PLOTS_DIR}/{}", p.png);
                 p.svg = format!("{PLOTS_DIR}/{}", p.svg);
+                if p.label_overlaps > 0 || p.labels_outside > 0 {
+                    problems.push(format!(
+                        "plot '{title}': {} overlapping label pair(s), {} label(s) outside the plot",
+                        p.label_overlaps, p.labels_outside
+                    ));
+                }
                 Some(p)
             }
             Err(e) => {
@@ -211,104 +214,7 @@ pub fn write_report_with(
     let suffix = |g: &TimingGroup| if multi { format!(" [{}]", machine_name(&g.machine)) } else { String::new() };
     let build_suffix =
         |g: &TimingGroup| if multi_build { format!(" [{}]", machine_name(&g.machine)) } else { String::new() };
-    let mut pareto = Vec::new();
-    let mut sah = Vec::new();
-    let mut rays = Vec::new();
-    for scene in &scenes {
-        let scene_rows: Vec<&ResultRow> = rows.iter().filter(|r| r.scene == *scene).collect();
-        let name = scene_rows[0].scene_name.as_str();
-        // One point / bar per chain: ray sets repeat the build metrics, keep the first row.
-        let chains = first_per(&scene_rows, |r| r.method.clone());
-
-        // With a focus box (far outlier, huge ground plane) the object's cost is what matters; the
-        // whole-scene cost is still in the bar chart below.
-        let focus = chains.iter().any(|r| r.focus_sah_cost.is_some_and(f64::is_finite));
-        let cost_label = if focus { "focus SAH cost" } else { "SAH cost" };
-        // Build time only: grouped by the construction stages' model.
-        for g in &build_groups {
-        let timed: Vec<&ResultRow> = g.rows.iter().copied().filter(|r| r.scene == *scene).collect();
-        let chains = first_per(&timed, |r| r.method.clone());
-        if chains.is_empty() {
-            continue;
-        }
-        let fig = ParetoFigure {
-            scene: name.to_string(),
-            cost_label: cost_label.to_string(),
-            time_label: if chains.iter().any(|r| r.optimizer.is_some()) {
-                "encode + build + optimize + compact time [s]".to_string()
-            } else {
-                "encode + build + compact time [s]".to_string()
-            },
-            points: chains
-                .iter()
-                .map(|r| ParetoPoint {
-                    label: r.method.clone(),
-                    method_index: method_index(&r.method),
-                    // Encode + build + optimize + compaction: Morton builders pay for their codes
-                    // and sort, optimizer chains for their passes.
-                    seconds: analysis::total_build_seconds(r),
-                    sah_cost: if focus { r.focus_sah_cost.unwrap_or(f64::NAN) } else { r.sah_cost },
-                })
-                .collect(),
-        };
-        pareto.extend(plot(
-            &fig,
-            &format!("pareto_{name}{}", if multi_build { format!("_{}", machine_name(&g.machine)) } else { String::new() }),
-            &format!("{name}: build time vs {cost_label}{}", build_suffix(g)),
-            &mut problems,
-        ));
-        }
-
-        let bars = |v: &dyn Fn(&ResultRow) -> Option<f64>, rs: &[&ResultRow]| -> Vec<Bar> {
-            rs.iter()
-                .filter_map(|r| {
-                    v(r).map(|value| Bar { label: r.method.clone(), value, color_index: method_index(&r.method) })
-                })
-                .collect()
-        };
-        let fig = BarsFigure {
-            caption: format!("{name}: SAH cost per method"),
-            panels: {
-                let mut p = vec![Panel {
-                    title: format!("c_T = {}, c_I = {}", scene_rows[0].c_t, scene_rows[0].c_i),
-                    x_desc: "SAH cost".into(),
-                    bars: bars(&|r| Some(r.sah_cost), &chains),
-                }];
-                if focus {
-                    p.push(Panel {
-                        title: "focus box: object subtree".into(),
-                        x_desc: "focus SAH cost".into(),
-                        bars: bars(&|r| r.focus_sah_cost, &chains),
-                    });
-                }
-                p
-            },
-        };
-        sah.extend(plot(&fig, &format!("sah_{name}"), &format!("{name}: SAH cost"), &mut problems));
-
-        let kinds = unique(scene_rows.iter().filter_map(|r| r.rays_kind.as_deref()));
-        for kind in kinds {
-            let kind_rows: Vec<&ResultRow> = scene_rows
-                .iter()
-                .copied()
-                .filter(|r| r.rays_kind.as_deref() == Some(kind))
-                .collect();
-            let kind_rows = first_per(&kind_rows, |r| r.method.clone());
-            let steps = bars(&|r| r.traversal_steps_per_ray, &kind_rows);
-            let isects = bars(&|r| r.intersections_per_ray, &kind_rows);
-            if steps.is_empty() && isects.is_empty() {
-                continue;
-            }
-            let fig = BarsFigure {
-                caption: format!("{name}, {kind} rays"),
-                panels: vec![
-                    Panel { title: "traversal steps per ray".into(), x_desc: "steps / ray".into(), bars: steps },
-                    Panel { title: "intersections per ray".into(), x_desc: "intersections / ray".into(), bars: isects },
-                ],
-            };
-            rays.extend(plot(&fig, &format!("rays_{name}_{kind}"), &format!("{name}: {kind} rays"), &mut problems));
-        }
-    }
+    let (pareto, sah, rays) = sections::charts::per_scene(rows, &build_groups, multi_build, &mut plot, &mut problems);
 
     let sweep_section = sweeps::section(rows, &mut |fig, stem, title, problems| plot(fig, stem, title, problems), &mut problems);
 
@@ -369,61 +275,56 @@ pub fn write_report_with(
         }
     }
 
-    let sections = vec![
-        Section {
-            id: "pareto",
-            title: "Build time vs SAH cost (Pareto front)".into(),
-            intro: "One point per chain (builder, parameters, encoder, compaction) and scene. The cost \
-                    is the SAH cost, or the focus SAH cost for scenes with a focus box (axis label). \
-                    Filled, ringed points are on the Pareto front (no other chain is both faster and cheaper); the \
-                    line connects them. Time is the whole construction: encode (Morton/EMC codes \
-                    and their sort) + build + optimize (ibo, kensler: the label says +ibo ...) + \
-                    compaction (medians)."
-                .into(),
-            plots: pareto,
-            extra: String::new(),
-        },
-        Section {
-            id: "sah",
-            title: "SAH cost per method".into(),
-            intro: "SAH cost of each chain per scene, with the cost constants of the run; for scenes \
-                    with a focus box also the focus SAH cost (the smallest subtree holding the focus \
-                    triangles, normalized by their own bounds), which the Pareto chart then uses."
-                .into(),
-            plots: sah,
-            extra: String::new(),
-        },
-        Section {
-            id: "rays",
-            title: "Traversal steps and intersections per ray".into(),
-            intro: "Per scene and ray set, for chains with a measure stage.".into(),
-            plots: rays,
-            extra: String::new(),
-        },
+    let mut pareto_section = Section::new(
+        "pareto",
+        "Build time vs SAH cost (Pareto front)",
+        "One point per build chain (builder, parameters, encoder, optimizer, compaction) and scene; the \
+         layouts of a build share its point and are charted in the layouts section. The cost is the SAH cost, \
+         or the focus SAH cost for scenes with a focus box (axis label). Filled, ringed points are on the \
+         Pareto front (no other chain is both faster and cheaper); the line connects them and they are named \
+         where the name fits; every other point carries a number from the key under the chart. Time is the \
+         whole construction: encode (Morton/EMC codes and their sort) + build + optimize + compaction (medians).",
+        pareto,
+    );
+    pareto_section.open = true;
+    let mut sections = vec![
+        pareto_section,
+        Section::new(
+            "sah",
+            "SAH cost per method",
+            "SAH cost of each build chain per scene, with the cost constants of the run; for scenes with a \
+             focus box also the focus SAH cost (the smallest subtree holding the focus triangles, normalized \
+             by their own bounds), which the Pareto chart then uses.",
+            sah,
+        ),
+        Section::new("rays", "Traversal steps and intersections per ray", "Per scene and ray set, for chains with a measure stage.", rays),
         sweep_section,
     ];
-    let mut sections = sections;
     sections.extend(optimization_section);
     sections.extend(layouts_section);
-    sections.extend([
-        Section {
-            id: "flags",
-            title: format!("Flags: cost above {}x the best method", analysis::FLAG_RATIO),
-            intro: format!(
-                "Every (scene, method) whose SAH cost is more than {}x the best valid method's on that \
-                 scene, or not a finite number. Scenes with a focus box are compared by focus_sah_cost \
-                 (the object's subtree: with a far outlier or a huge ground plane the whole-scene cost \
-                 says little), other scenes by sah_cost; the metric column says which.",
-                analysis::FLAG_RATIO
-            ),
-            plots: Vec::new(),
-            extra: html::flags_table(&analysis::flags(rows)),
-        },
-    ]);
+    let cost_flags = analysis::flags(rows);
+    let mut flags_section = Section::new(
+        "flags",
+        format!("Flags: cost above {}x the best method", analysis::FLAG_RATIO),
+        format!(
+            "Every (scene, method) whose SAH cost is more than {}x the best valid method's on that \
+             scene, or not a finite number. Scenes with a focus box are compared by focus_sah_cost \
+             (the object's subtree: with a far outlier or a huge ground plane the whole-scene cost \
+             says little), other scenes by sah_cost; the metric column says which.",
+            analysis::FLAG_RATIO
+        ),
+        Vec::new(),
+    );
+    flags_section.extra = sections::tables::flags_table(&cost_flags).into_string();
+    sections.push(flags_section);
+
+    let chips = summary_chips(rows, &problems, &cost_flags, options, &groups);
+    let summary = sections::summary::render(&sections::summary::scene_lines(rows), &chips, reference.as_ref());
     let page = Page {
         experiment,
         generated: html::utc_now(),
         rows,
+        summary,
         sections,
         heatmaps,
         reference,
@@ -432,8 +333,45 @@ pub fn write_report_with(
         notices: format!("{}{}", incomplete_notice(&options.missing_chains), machines_notice(rows, &groups)),
     };
     let index = out_dir.join("index.html");
-    fsutil::write_atomic(&index, html::render(&page).as_bytes())?;
+    fsutil::write_atomic(&index, sections::render(&page).as_bytes())?;
     Ok(index)
+}
+
+/// The flags of the first screen, each linking to where it is explained.
+fn summary_chips(
+    rows: &[ResultRow],
+    problems: &[String],
+    cost_flags: &[analysis::Flag],
+    options: &ReportOptions,
+    groups: &[TimingGroup],
+) -> Vec<Chip> {
+    let mut chips = Vec::new();
+    let plural = |n: usize, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
+    let invalid = sections::tables::invalid_chains(rows).len();
+    if invalid > 0 {
+        chips.push(Chip::new("bad", plural(invalid, "invalid chain", "invalid chains"), "#invalid"));
+    }
+    if !options.missing_chains.is_empty() {
+        chips.push(Chip::new("bad", plural(options.missing_chains.len(), "chain missing", "chains missing"), "#incomplete"));
+    }
+    if !problems.is_empty() {
+        chips.push(Chip::new("bad", plural(problems.len(), "report problem", "report problems"), "#problems"));
+    }
+    let precision = rows.iter().filter_map(|r| r.precision_warning.as_ref()).collect::<std::collections::BTreeSet<_>>().len();
+    if precision > 0 {
+        chips.push(Chip::new("note", plural(precision, "precision warning", "precision warnings"), "#precision"));
+    }
+    if !cost_flags.is_empty() {
+        chips.push(Chip::new(
+            "note",
+            format!("{} above {}x the best cost", plural(cost_flags.len(), "method", "methods"), analysis::FLAG_RATIO),
+            "#flags",
+        ));
+    }
+    if groups.len() > 1 || rows.iter().any(|r| r.machine_mixed) {
+        chips.push(Chip::new("note", "timings from several CPU models", "#machines"));
+    }
+    chips
 }
 
 /// A per-model copy of a section: the model in its title, a distinct anchor.
@@ -468,11 +406,6 @@ fn unique<'a>(it: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
     out
 }
 
-fn first_per<'a>(rows: &[&'a ResultRow], key: impl Fn(&ResultRow) -> String) -> Vec<&'a ResultRow> {
-    let mut seen = std::collections::HashSet::new();
-    rows.iter().copied().filter(|r| seen.insert(key(r))).collect()
-}
-
 /// Copies each row's heat map PNG (a cache path) into `out_dir/heatmaps/` under a readable name, so
 /// the report stays valid when the cache is cleaned. Missing files are reported, not fatal.
 fn copy_heatmaps(out_dir: &Path, rows: &[ResultRow], problems: &mut Vec<String>) -> Vec<Heatmap> {
@@ -494,6 +427,7 @@ fn copy_heatmaps(out_dir: &Path, rows: &[ResultRow], problems: &mut Vec<String>)
         let file = format!("{stem}.png");
         match fsutil::copy_atomic(Path::new(src), &dir.join(&file)) {
             Ok(()) => out.push(Heatmap {
+                scene: r.scene_name.clone(),
                 caption: format!("{}: {} ({})", r.scene_name, r.method, kind),
                 file: format!("{HEATMAPS_DIR}/{file}"),
             }),

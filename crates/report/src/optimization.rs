@@ -92,6 +92,7 @@ pub fn section(
         ),
         plots,
         extra,
+        open: false,
     })
 }
 

@@ -171,6 +171,7 @@ pub fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<String>
         intro,
         plots,
         extra,
+        open: false,
     }
 }
 

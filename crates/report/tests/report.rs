@@ -278,3 +278,53 @@ fn timings_from_two_machines_are_plotted_per_machine() {
     let g = bvhlab_report::build_timing_groups(&rows);
     assert_eq!(g.iter().map(|g| (g.machine.as_str(), g.rows.len())).collect::<Vec<_>>(), vec![("CPU A", 3), ("CPU B", 2)]);
 }
+
+/// Issue 16: every label a figure places is free of every other and inside its plot, on a scene
+/// with many chains piled up at the front (the found case: labels on top of each other there).
+#[test]
+fn dense_plots_have_no_overlapping_labels() {
+    use bvhlab_report::plots::{bars, pareto, render};
+    let dir = tempfile::tempdir().unwrap();
+    let mut points = Vec::new();
+    for i in 0..40 {
+        // Half of them on one cost (the front's flat end), times close together.
+        let cost = if i % 2 == 0 { 7.0 } else { 7.0 + (i as f64) * 0.7 };
+        points.push(pareto::ParetoPoint {
+            label: format!("binned-sah bins={} leaf=2 +ibo comb +collapse variant {i}", 4 + i),
+            method_index: i,
+            seconds: 1e-3 * (1.0 + 0.05 * i as f64),
+            sah_cost: cost,
+        });
+    }
+    // Identical points (layouts of one build used to stack on the build's point).
+    for i in 0..4 {
+        points.push(pareto::ParetoPoint { label: format!("same {i}"), method_index: 0, seconds: 2e-3, sah_cost: 9.0 });
+    }
+    let fig = pareto::ParetoFigure {
+        scene: "dense".into(),
+        cost_label: "SAH cost".into(),
+        time_label: "time [s]".into(),
+        points,
+    };
+    let p = render(&fig, dir.path(), "pareto_dense", "dense").unwrap();
+    assert!(p.labels >= 20, "labels placed: {}", p.labels);
+    assert_eq!((p.label_overlaps, p.labels_outside), (0, 0), "pareto labels");
+
+    let bars = bars::BarsFigure {
+        caption: "dense bars".into(),
+        panels: vec![bars::Panel {
+            title: "t".into(),
+            x_desc: "SAH cost".into(),
+            bars: (0..60)
+                .map(|i| bars::Bar {
+                    label: format!("{} @qbvh bits=8,chunk_bytes=64,frame=parent,fill=dense {i}", "x".repeat(i % 30)),
+                    value: if i == 7 { f64::NAN } else { 1.0 + i as f64 },
+                    color_index: i,
+                })
+                .collect(),
+        }],
+    };
+    let p = render(&bars, dir.path(), "bars_dense", "bars").unwrap();
+    assert_eq!(p.labels, 120, "every bar has its name and value");
+    assert_eq!((p.label_overlaps, p.labels_outside), (0, 0), "bar labels");
+}

@@ -1,6 +1,6 @@
 //! Horizontal bar charts, one bar per method: SAH cost per scene, traversal steps and intersections
 //! per ray per scene and ray set. Horizontal so long method labels stay readable.
-use super::{bar_range, color, err, fmt_num, Figure};
+use super::{bar_range, color, err, fmt_num, labels, Figure};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -24,18 +24,20 @@ pub struct BarsFigure {
 }
 
 impl BarsFigure {
+    /// Room for the longest bar name in full (13 px sans-serif, about 8 px per character; the
+    /// names are drawn by `draw_panel`, which checks the real size).
     fn label_width(&self) -> u32 {
         let chars =
             self.panels.iter().flat_map(|p| p.bars.iter()).map(|b| b.label.chars().count()).max();
-        (chars.unwrap_or(4) as u32 * 7 + 16).clamp(60, 320)
+        (chars.unwrap_or(4) as u32 * 8 + 24).clamp(60, 900)
     }
 }
 
 impl Figure for BarsFigure {
     fn size(&self) -> (u32, u32) {
         let n = self.panels.iter().map(|p| p.bars.len()).max().unwrap_or(1) as u32;
-        let w = self.panels.len().max(1) as u32 * (self.label_width() + 480);
-        (w.min(2400), (n * 34 + 150).clamp(260, 1600))
+        let w = self.panels.len().max(1) as u32 * (self.label_width() + 420);
+        (w, n * 24 + 130)
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
@@ -57,9 +59,8 @@ fn draw_panel<DB: DrawingBackend>(
     if n == 0 {
         return Ok(());
     }
-    let labels: Vec<String> = panel.bars.iter().map(|b| b.label.clone()).collect();
-    // One category per unit; the label tick sits at the centre. Bar 0 on top, as in a table.
-    
+    // One category per unit, bar 0 on top as in a table; every bar named in full at its left
+    // (plotters' tick labels skip categories when they get dense).
     let yr = super::Categories(n);
     let xr = bar_range(panel.bars.iter().map(|b| b.value));
     let mut chart = ChartBuilder::on(area)
@@ -67,24 +68,22 @@ fn draw_panel<DB: DrawingBackend>(
         .margin(10)
         .x_label_area_size(40)
         .y_label_area_size(label_width)
-        .build_cartesian_2d(xr, yr)
+        .build_cartesian_2d(xr.clone(), yr)
         .map_err(err)?;
-    let label_of = |v: &f64| {
-        let i = n as f64 - v;
-        if i < 0.0 {
-            return String::new();
-        }
-        labels.get(i.floor() as usize).cloned().unwrap_or_default()
-    };
+    let fmt = labels::axis_format(xr.start, xr.end);
     chart
         .configure_mesh()
         .disable_y_mesh()
+        .y_labels(0)
         .x_desc(&panel.x_desc)
-        .x_label_formatter(&|v| fmt_num(*v))
-        .y_label_formatter(&label_of)
-        .y_label_style(("sans-serif", 13))
+        .x_label_formatter(&fmt)
         .draw()
         .map_err(err)?;
+    let (px, py) = chart.plotting_area().get_pixel_range();
+    let plot = labels::plot_rect(px.clone(), py);
+    let (ax, ay) = area.get_base_pixel();
+    let (aw, ah) = area.dim_in_pixel();
+    let whole = labels::Rect { x0: ax, y0: ay, x1: ax + aw as i32, y1: ay + ah as i32 };
     for (i, b) in panel.bars.iter().enumerate() {
         // Row i from the top occupies [n-i-1, n-i).
         let top = (n - i) as f64 - 0.15;
@@ -97,14 +96,15 @@ fn draw_panel<DB: DrawingBackend>(
                 )))
                 .map_err(err)?;
         }
+        let (_, cy) = chart.backend_coord(&(0.0, (n - i) as f64 - 0.5));
+        let (w, h) = labels::text_size(area, &b.label, 13.0);
+        labels::draw_at(area, &b.label, 13.0, (px.start - 6 - w, cy - h / 2), whole)?;
         let text = if b.value.is_finite() { fmt_num(b.value) } else { "n/a".into() };
-        let x = if b.value.is_finite() { b.value } else { 0.0 };
-        chart
-            .draw_series(std::iter::once(
-                EmptyElement::at((x, (n - i) as f64 - 0.5))
-                    + Text::new(text, (4, -7), ("sans-serif", 13).into_font()),
-            ))
-            .map_err(err)?;
+        let (ex, _) = chart.backend_coord(&(if b.value.is_finite() { b.value.max(0.0) } else { 0.0 }, 0.0));
+        let (w, h) = labels::text_size(area, &text, 12.0);
+        // After the bar's end, or inside it when the end is at the right edge.
+        let x = if ex + 4 + w <= plot.x1 { ex + 4 } else { (ex - 4 - w).max(plot.x0) };
+        labels::draw_at(area, &text, 12.0, (x, cy - h / 2), plot)?;
     }
     Ok(())
 }

@@ -2,6 +2,7 @@
 //! PNG (BitMapBackend) for index.html and SVG (SVGBackend) for zooming and papers.
 pub mod bars;
 pub mod convergence;
+pub mod labels;
 pub mod pareto;
 pub mod reference;
 pub mod sweep;
@@ -24,6 +25,11 @@ pub struct Plot {
     pub title: String,
     pub png: String,
     pub svg: String,
+    /// Labels the figure placed itself (point labels, bar names and values; see `labels`), and
+    /// how many of them overlap another or leave their plot area (both 0 by construction).
+    pub labels: usize,
+    pub label_overlaps: usize,
+    pub labels_outside: usize,
 }
 
 /// Renders `fig` as `<out_dir>/<stem>.png` and `.svg`. Text rendering goes through the system's
@@ -35,7 +41,9 @@ pub fn render<F: Figure>(fig: &F, out_dir: &Path, stem: &str, title: &str) -> Re
     let png = out_dir.join(&png_name);
     let svg = out_dir.join(&svg_name);
     let size = fig.size();
+    let mut rec = labels::Record::default();
     let res = catch_unwind(AssertUnwindSafe(|| -> Result<(), String> {
+        labels::start();
         let tmp = tmp_path(&png);
         let drawn = (|| {
             let root = BitMapBackend::new(&tmp, size).into_drawing_area();
@@ -43,6 +51,7 @@ pub fn render<F: Figure>(fig: &F, out_dir: &Path, stem: &str, title: &str) -> Re
             fig.draw(&root)?;
             root.present().map_err(err)
         })();
+        rec = labels::take();
         finish(drawn, &tmp, &png)?;
         let tmp = tmp_path(&svg);
         let drawn = (|| {
@@ -51,10 +60,19 @@ pub fn render<F: Figure>(fig: &F, out_dir: &Path, stem: &str, title: &str) -> Re
             fig.draw(&root)?;
             root.present().map_err(err)
         })();
-        finish(drawn, &tmp, &svg)
+        let r = finish(drawn, &tmp, &svg);
+        labels::take();
+        r
     }));
     match res {
-        Ok(Ok(())) => Ok(Plot { title: title.to_string(), png: png_name, svg: svg_name }),
+        Ok(Ok(())) => Ok(Plot {
+            title: title.to_string(),
+            png: png_name,
+            svg: svg_name,
+            labels: rec.labels.len(),
+            label_overlaps: rec.overlaps(),
+            labels_outside: rec.outside(),
+        }),
         Ok(Err(e)) => Err(format!("plot '{title}': {e}")),
         Err(_) => Err(format!("plot '{title}': plotters panicked (fonts missing?)")),
     }
@@ -151,7 +169,7 @@ impl plotters::coord::ranged1d::Ranged for Categories {
     }
 
     fn key_points<H: plotters::coord::ranged1d::KeyPointHint>(&self, hint: H) -> Vec<f64> {
-        if hint.weight().allow_light_points() {
+        if hint.weight().allow_light_points() || hint.max_num_points() == 0 {
             return Vec::new();
         }
         // Label every slot if there is room, else every k-th.

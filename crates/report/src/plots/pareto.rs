@@ -1,6 +1,6 @@
 //! Build time against SAH cost, one point per (builder, parameters, compaction) of a scene, with the
 //! Pareto front (DEVELOPERS.md principle 1: chart speed against quality).
-use super::{color, err, fmt_num, Figure};
+use super::{color, err, labels, Figure};
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -50,7 +50,28 @@ pub struct ParetoFigure {
     pub points: Vec<ParetoPoint>,
 }
 
+/// Height of the chart; the numbered key goes below it.
+const CHART_HEIGHT: u32 = 600;
+const KEY_ROW: u32 = 18;
+const KEY_COLUMNS: usize = 2;
+
 impl ParetoFigure {
+    /// Room for a key entry per point (an upper bound: front points labelled in place need none).
+    fn key_height(&self) -> u32 {
+        // The key holds the points that got a number, known only after placing the labels: place
+        // them once on a throwaway SVG of the chart's size (the placement depends on it alone).
+        let mut svg = String::new();
+        let n = {
+            let root = SVGBackend::with_string(&mut svg, (900, CHART_HEIGHT)).into_drawing_area();
+            self.chart(&root).map(|k| k.len()).unwrap_or(self.points.len())
+        };
+        if n == 0 {
+            0
+        } else {
+            n.div_ceil(KEY_COLUMNS) as u32 * KEY_ROW + 16
+        }
+    }
+
     /// Finite points (log axes need positive times too, handled in `draw`).
     fn finite(&self) -> Vec<&ParetoPoint> {
         self.points.iter().filter(|p| p.seconds.is_finite() && p.sah_cost.is_finite()).collect()
@@ -59,10 +80,19 @@ impl ParetoFigure {
 
 impl Figure for ParetoFigure {
     fn size(&self) -> (u32, u32) {
-        (900, 600)
+        (900, CHART_HEIGHT + self.key_height())
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+        let (chart, key_area) = root.split_vertically(CHART_HEIGHT);
+        let key = self.chart(&chart)?;
+        draw_key(&key_area, &key)
+    }
+}
+
+impl ParetoFigure {
+    /// Draws the chart; returns the numbered key.
+    fn chart<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<Vec<String>, String> {
         let pts = self.finite();
         let title = format!("{}: build time vs {}", self.scene, self.cost_label);
         if pts.is_empty() {
@@ -72,21 +102,22 @@ impl Figure for ParetoFigure {
                 ("sans-serif", 18).into_font(),
             ))
             .map_err(err)?;
-            return Ok(());
+            return Ok(Vec::new());
         }
         let (xmin, xmax) = min_max(pts.iter().map(|p| p.seconds));
         let (ymin, ymax) = min_max(pts.iter().map(|p| p.sah_cost));
         // Log y when the costs span more than a factor 20 (a method that failed on a far outlier
         // would squash every other point onto one line).
-        if ymin > 0.0 && ymax / ymin > 20.0 {
+        let key = if ymin > 0.0 && ymax / ymin > 20.0 {
             let yr = (ymin / 1.3..ymax * 1.5).log_scale();
             let ydesc = format!("{} (log)", self.cost_label);
-            self.draw_x(root, &title, yr, &ydesc, xmin, xmax)
+            self.draw_x(root, &title, yr, &ydesc, (ymin, ymax), xmin, xmax)?
         } else {
             let ypad = if ymax > ymin { 0.08 * (ymax - ymin) } else { 0.05 * ymax.abs().max(1.0) };
             let yr = (ymin - ypad)..(ymax + ypad);
-            self.draw_x(root, &title, yr, &self.cost_label, xmin, xmax)
-        }
+            self.draw_x(root, &title, yr, &self.cost_label, (ymin - ypad, ymax + ypad), xmin, xmax)?
+        };
+        Ok(key)
     }
 }
 
@@ -99,28 +130,32 @@ impl ParetoFigure {
         title: &str,
         yr: Y,
         ydesc: &str,
+        ylim: (f64, f64),
         xmin: f64,
         xmax: f64,
-    ) -> Result<(), String>
+    ) -> Result<Vec<String>, String>
     where
         DB: DrawingBackend,
         Y: AsRangedCoord<Value = f64>,
         Y::CoordDescType: ValueFormatter<f64>,
     {
         if xmin > 0.0 && xmax / xmin > 10.0 {
-            // Extra room on the right for the point labels.
-            let xr = (xmin / 1.5..xmax * 4.0).log_scale();
-            self.draw_with(root, title, xr, yr, &format!("{} (log)", self.time_label), ydesc)
+            let xr = (xmin / 1.5..xmax * 1.5).log_scale();
+            let lim = ((xmin / 1.5, xmax * 1.5), ylim);
+            self.draw_with(root, title, xr, yr, &format!("{} (log)", self.time_label), ydesc, lim)
         } else {
             let xpad = if xmax > xmin { 0.1 * (xmax - xmin) } else { 0.05 * xmax.abs().max(1e-6) };
             let lo = if xmin >= 0.0 { 0.0 } else { xmin - xpad };
-            let xr = lo..(xmax + 3.0 * xpad);
-            self.draw_with(root, title, xr, yr, &self.time_label, ydesc)
+            let xr = lo..(xmax + xpad);
+            let lim = ((lo, xmax + xpad), ylim);
+            self.draw_with(root, title, xr, yr, &self.time_label, ydesc, lim)
         }
     }
 }
 
 impl ParetoFigure {
+    /// Draws the chart and returns the numbered key (entry k-1 is point number k).
+    #[allow(clippy::too_many_arguments)]
     fn draw_with<DB, X, Y>(
         &self,
         root: &DrawingArea<DB, Shift>,
@@ -129,7 +164,8 @@ impl ParetoFigure {
         yr: Y,
         xdesc: &str,
         ydesc: &str,
-    ) -> Result<(), String>
+        lim: ((f64, f64), (f64, f64)),
+    ) -> Result<Vec<String>, String>
     where
         DB: DrawingBackend,
         Y: AsRangedCoord<Value = f64>,
@@ -145,24 +181,22 @@ impl ParetoFigure {
             .y_label_area_size(70)
             .build_cartesian_2d(xr, yr)
             .map_err(err)?;
+        let (xf, yf) = (labels::axis_format(lim.0 .0, lim.0 .1), labels::axis_format(lim.1 .0, lim.1 .1));
         chart
             .configure_mesh()
             .x_desc(xdesc)
             .y_desc(ydesc)
-            .x_label_formatter(&|v| fmt_num(*v))
-            .y_label_formatter(&|v| fmt_num(*v))
+            .x_label_formatter(&xf)
+            .y_label_formatter(&yf)
             .draw()
             .map_err(err)?;
 
         let xy: Vec<(f64, f64)> = pts.iter().map(|p| (p.seconds, p.sah_cost)).collect();
         let front = pareto_front(&xy);
-        let on_front: Vec<bool> = {
-            let mut v = vec![false; pts.len()];
-            for &i in &front {
-                v[i] = true;
-            }
-            v
-        };
+        let mut on_front = vec![false; pts.len()];
+        for &i in &front {
+            on_front[i] = true;
+        }
         // The front as a staircase would suggest interpolated configurations exist; a plain
         // polyline just connects the non-dominated points in time order.
         chart
@@ -174,16 +208,14 @@ impl ParetoFigure {
             .label("Pareto front")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
 
+        let px: Vec<(i32, i32)> = xy.iter().map(|p| chart.backend_coord(p)).collect();
+        let mut markers = Vec::new();
         for (k, p) in pts.iter().enumerate() {
             let c = color(p.method_index);
             let style = if on_front[k] { c.filled() } else { c.stroke_width(2) };
             let radius = if on_front[k] { 7 } else { 5 };
             chart
-                .draw_series(std::iter::once(
-                    EmptyElement::at((p.seconds, p.sah_cost))
-                        + Circle::new((0, 0), radius, style)
-                        + Text::new(p.label.clone(), (9, -14), ("sans-serif", 13).into_font()),
-                ))
+                .draw_series(std::iter::once(Circle::new((p.seconds, p.sah_cost), radius, style)))
                 .map_err(err)?;
             if on_front[k] {
                 chart
@@ -194,6 +226,9 @@ impl ParetoFigure {
                     )))
                     .map_err(err)?;
             }
+            let r = radius + 3;
+            let (x, y) = px[k];
+            markers.push(labels::Rect { x0: x - r, y0: y - r, x1: x + r, y1: y + r });
         }
         chart
             .draw_series(std::iter::empty::<Circle<(f64, f64), i32>>())
@@ -208,8 +243,72 @@ impl ParetoFigure {
             .label_font(("sans-serif", 13))
             .draw()
             .map_err(err)?;
-        Ok(())
+
+        // Labels: points that coincide on screen share one; front points get their name where it
+        // fits, every other point (and a front point whose name does not fit) a number from the
+        // key below the chart. The legend box is an obstacle too.
+        let (xr, yr) = chart.plotting_area().get_pixel_range();
+        let bounds = labels::plot_rect(xr.clone(), yr.clone());
+        let legend = labels::Rect { x0: xr.end - 260, y0: yr.start, x1: xr.end, y1: yr.start + 60 };
+        markers.push(legend);
+        let mut placer = labels::Placer::new(bounds, markers);
+        let mut groups: Vec<Vec<usize>> = Vec::new();
+        let mut order: Vec<usize> = (0..pts.len()).collect();
+        // Front first (in time order), then the rest by cost: the front's labels get the best spots.
+        order.sort_by(|&a, &b| {
+            on_front[b].cmp(&on_front[a]).then(xy[a].1.total_cmp(&xy[b].1)).then(xy[a].0.total_cmp(&xy[b].0))
+        });
+        for k in order {
+            match groups.iter_mut().find(|g| {
+                let (gx, gy) = px[g[0]];
+                (gx - px[k].0).abs() <= 3 && (gy - px[k].1).abs() <= 3
+            }) {
+                Some(g) => g.push(k),
+                None => groups.push(vec![k]),
+            }
+        }
+        let mut key = Vec::new();
+        for g in &groups {
+            let anchor = px[g[0]];
+            if g.iter().any(|&k| on_front[k]) {
+                let name = g.iter().map(|&k| pts[k].label.as_str()).collect::<Vec<_>>().join("; ");
+                if placer.place(root, &name, 13.0, anchor)? {
+                    continue;
+                }
+            }
+            let first = key.len() + 1;
+            key.extend(g.iter().map(|&k| pts[k].label.clone()));
+            let nums = if g.len() == 1 { first.to_string() } else { format!("{first}-{}", key.len()) };
+            // A number that finds no free spot still has its key entry; the point is then the
+            // unlabelled one nearest its numbered neighbours.
+            placer.place(root, &nums, 12.0, anchor)?;
+        }
+        Ok(key)
     }
+}
+
+/// The numbered key under the chart, in columns.
+fn draw_key<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, key: &[String]) -> Result<(), String> {
+    if key.is_empty() {
+        return Ok(());
+    }
+    let (bx, by) = area.get_base_pixel();
+    let (w, h) = area.dim_in_pixel();
+    let whole = labels::Rect { x0: bx, y0: by, x1: bx + w as i32, y1: by + h as i32 };
+    let col_w = (w as i32 - 30) / KEY_COLUMNS as i32;
+    let rows = key.len().div_ceil(KEY_COLUMNS);
+    for (i, name) in key.iter().enumerate() {
+        let (c, r) = (i / rows, i % rows);
+        let mut text = format!("{}  {name}", i + 1);
+        // Cut names longer than the column (the full name is in the tables and the SVG title).
+        while labels::text_size(area, &text, 12.0).0 > col_w - 10 && text.chars().count() > 8 {
+            let keep = text.chars().count() - 2;
+            text = text.chars().take(keep).collect::<String>() + "…";
+        }
+        let at = (bx + 15 + c as i32 * col_w, by + 8 + r as i32 * KEY_ROW as i32);
+        labels::draw_at(area, &text, 12.0, at, whole)?;
+    }
+    Ok(())
 }
 
 fn min_max(vs: impl Iterator<Item = f64>) -> (f64, f64) {
