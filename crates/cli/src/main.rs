@@ -8,6 +8,7 @@ use std::collections::BTreeMap;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
+mod fetch;
 mod slurm;
 
 #[derive(Parser)]
@@ -167,10 +168,41 @@ enum Cmd {
         #[arg(long, global = true)]
         cache: Option<PathBuf>,
     },
-    /// List scene generators and their parameters.
-    Scenes,
+    /// List scene generators and their parameters, and the catalogued real scenes; `scenes fetch`
+    /// fetches and verifies real scenes.
+    Scenes {
+        #[command(subcommand)]
+        op: Option<ScenesOp>,
+    },
     /// List builders, encoders, optimizers and layouts with their parameters (defaults in brackets).
     Methods,
+}
+
+#[derive(Subcommand)]
+enum ScenesOp {
+    /// Fetch catalogued real scenes (experiments/scenes.toml) from a web server or a directory holding
+    /// the stored files, verify size and BLAKE3, and move each verified file into the scene directory
+    /// (a file failing verification is deleted, nothing in place is replaced). Files already present
+    /// and verified are skipped; with neither --from nor $BVHLAB_SCENES_FROM only that check runs.
+    Fetch {
+        /// Scene names (see `bvhlab scenes`).
+        names: Vec<String>,
+        /// Every catalogued scene.
+        #[arg(long)]
+        all: bool,
+        /// http(s):// base address (FILE is fetched from URL/FILE) or a directory holding the stored
+        /// files (default: $BVHLAB_SCENES_FROM). The catalogue's origin sites serve the original models
+        /// in other formats, never the stored bytes, so there is no built-in default.
+        #[arg(long, value_name = "URL|DIR")]
+        from: Option<String>,
+        /// Scene directory (default: ../shared/scenes beside the checkout the command runs in, where
+        /// the shipped experiments look for them).
+        #[arg(long, value_name = "SCENE_DIR")]
+        dir: Option<PathBuf>,
+        /// Replace a present file that does not match the catalogue (only ever by a verified one).
+        #[arg(long)]
+        replace: bool,
+    },
 }
 
 #[derive(Subcommand, Clone, Copy)]
@@ -445,7 +477,10 @@ fn run(cli: Cli) -> Result<()> {
                 }
             }
         }
-        Cmd::Scenes => {
+        Cmd::Scenes { op: Some(ScenesOp::Fetch { names, all, from, dir, replace }) } => {
+            fetch::run(&names, all, from, dir, replace)
+        }
+        Cmd::Scenes { op: None } => {
             for g in bvhlab_geom::gen::generators() {
                 println!("gen:{}  {}", g.name, g.about);
                 for (name, default, about) in g.params {
@@ -453,6 +488,7 @@ fn run(cli: Cli) -> Result<()> {
                 }
             }
             println!("files: path to .obj or .obj.gz");
+            fetch::list();
             Ok(())
         }
         Cmd::Methods => {

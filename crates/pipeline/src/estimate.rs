@@ -151,9 +151,7 @@ pub fn triangle_count(source: &SceneSource) -> Result<Option<(u64, bool)>> {
             Ok(gen_triangles(&canon))
         }
         SceneSource::File(path) => {
-            let err = |e: std::io::Error| {
-                Error::input(format!("{}: cannot read scene: {e}", path.display()))
-            };
+            let err = |e: std::io::Error| crate::catalogue::read_error(path, &e);
             let mut f = std::fs::File::open(path).map_err(err)?;
             let mut magic = [0u8; 2];
             let n = f.read(&mut magic).map_err(err)?;
@@ -245,7 +243,7 @@ pub fn check_source(
 /// corrupt stream is an input error naming the file and how much text it held.
 pub fn gzip_face_count(path: &std::path::Path) -> Result<(u64, u64)> {
     let f = std::fs::File::open(path)
-        .map_err(|e| Error::input(format!("{}: cannot read scene: {e}", path.display())))?;
+        .map_err(|e| crate::catalogue::read_error(path, &e))?;
     let len = f.metadata().map(|m| m.len()).unwrap_or(0);
     let mut counted = CountingReader { inner: f, bytes: 0 };
     let gz = flate2::read::MultiGzDecoder::new(&mut counted);

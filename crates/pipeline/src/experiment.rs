@@ -280,7 +280,10 @@ impl Experiment {
                 SceneSource::File(_) => match resolve_scene_path(&spec, path) {
                     Some(p) => SceneSource::File(p),
                     None => {
-                        return Err(at(s.span().start, format!("scene file not found: {spec}")))
+                        let hint = crate::catalogue::missing_hint(
+                            &crate::catalogue::experiment_scene_path(&spec, path),
+                        );
+                        return Err(at(s.span().start, format!("scene file not found: {spec}{hint}")));
                     }
                 },
             };
@@ -805,6 +808,8 @@ max = [16.0, 4.0, 16.0]
             .flatten()
             .map(|e| e.path())
             .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+            // The scene catalogue (crate::catalogue) is no experiment.
+            .filter(|p| !p.ends_with("scenes.toml"))
         {
             match Experiment::load(&f, &Registry::standard()) {
                 Ok(e) => assert!(!e.chains().is_empty(), "{}", f.display()),

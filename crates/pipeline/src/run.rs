@@ -220,9 +220,8 @@ impl Runner {
                     Some(h) => h.clone(),
                     None => {
                         // Keyed by content, not path: editing the file invalidates its artifacts.
-                        let bytes = std::fs::read(path).map_err(|e| {
-                            Error::input(format!("{}: cannot read scene: {e}", path.display()))
-                        })?;
+                        let bytes = std::fs::read(path)
+                            .map_err(|e| crate::catalogue::read_error(path, &e))?;
                         let h = blake3::hash(&bytes).to_hex().to_string();
                         self.file_hashes.insert(path.clone(), h.clone());
                         h
