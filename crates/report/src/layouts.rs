@@ -5,6 +5,7 @@
 //! table (Kilian's qualitative claims checked per scene) and the `layout=auto` choices.
 use crate::analysis::{method_key, parse_params};
 use crate::html::{escape, Section};
+use crate::plots::labels;
 use crate::plots::pareto::pareto_front;
 use crate::plots::{color, err, fmt_num, Figure};
 use crate::sweeps::PlotFn;
@@ -458,11 +459,12 @@ fn draw_panel<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panel: &Scatter
     };
     let xd = if xr.2 { format!("{} (log)", panel.x_desc) } else { panel.x_desc.clone() };
     let yd = if yr.2 { format!("{} (log)", panel.y_desc) } else { panel.y_desc.clone() };
+    let lims = ((xr.0, xr.1), (yr.0, yr.1));
     match (xr.2, yr.2) {
-        (false, false) => panel_with(area, panel, xr.0..xr.1, yr.0..yr.1, &xd, &yd),
-        (true, false) => panel_with(area, panel, (xr.0..xr.1).log_scale(), yr.0..yr.1, &xd, &yd),
-        (false, true) => panel_with(area, panel, xr.0..xr.1, (yr.0..yr.1).log_scale(), &xd, &yd),
-        (true, true) => panel_with(area, panel, (xr.0..xr.1).log_scale(), (yr.0..yr.1).log_scale(), &xd, &yd),
+        (false, false) => panel_with(area, panel, xr.0..xr.1, yr.0..yr.1, &xd, &yd, lims),
+        (true, false) => panel_with(area, panel, (xr.0..xr.1).log_scale(), yr.0..yr.1, &xd, &yd, lims),
+        (false, true) => panel_with(area, panel, xr.0..xr.1, (yr.0..yr.1).log_scale(), &xd, &yd, lims),
+        (true, true) => panel_with(area, panel, (xr.0..xr.1).log_scale(), (yr.0..yr.1).log_scale(), &xd, &yd, lims),
     }
 }
 
@@ -473,6 +475,7 @@ fn panel_with<DB, X, Y>(
     yr: Y,
     xdesc: &str,
     ydesc: &str,
+    lims: ((f64, f64), (f64, f64)),
 ) -> Result<(), String>
 where
     DB: DrawingBackend,
@@ -488,12 +491,13 @@ where
         .y_label_area_size(70)
         .build_cartesian_2d(xr, yr)
         .map_err(err)?;
+    let (xf, yf) = (labels::axis_format(lims.0 .0, lims.0 .1), labels::axis_format(lims.1 .0, lims.1 .1));
     chart
         .configure_mesh()
         .x_desc(xdesc)
         .y_desc(ydesc)
-        .x_label_formatter(&|v| fmt_num(*v))
-        .y_label_formatter(&|v| fmt_num(*v))
+        .x_label_formatter(&xf)
+        .y_label_formatter(&yf)
         .draw()
         .map_err(err)?;
     // Front over distinct finite points of every series.
@@ -530,14 +534,24 @@ where
         }
         .map_err(err)?;
     }
-    for (k, &i) in fr.iter().enumerate() {
+    for &i in &fr {
         chart
-            .draw_series(std::iter::once(
-                EmptyElement::at(xy[i])
-                    + Circle::new((0, 0), 8, BLACK.stroke_width(1))
-                    + Text::new(pts[i].2.clone(), (9, -14 + 12 * (k as i32 % 2)), ("sans-serif", 11).into_font()),
-            ))
+            .draw_series(std::iter::once(EmptyElement::at(xy[i]) + Circle::new((0, 0), 8, BLACK.stroke_width(1))))
             .map_err(err)?;
+    }
+    // Front points named where the name collides with no marker or other name (issue 16); the
+    // legend says which family each marker is.
+    let (px, py) = chart.plotting_area().get_pixel_range();
+    let markers: Vec<labels::Rect> = xy
+        .iter()
+        .map(|p| {
+            let (x, y) = chart.backend_coord(p);
+            labels::Rect { x0: x - 9, y0: y - 9, x1: x + 9, y1: y + 9 }
+        })
+        .collect();
+    let mut placer = labels::Placer::new(labels::plot_rect(px, py), markers);
+    for &i in &fr {
+        placer.place(area, &pts[i].2, 11.0, chart.backend_coord(&xy[i]))?;
     }
     Ok(())
 }

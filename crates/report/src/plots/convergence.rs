@@ -1,7 +1,7 @@
 //! Convergence of the optimizers on one initial tree (Bittner 2013 figures 7 and 8): SAH cost
 //! against seconds (left) and against the pass (right), one curve per optimizer / measure, with a
 //! ring at the pass that reaches 90% of the curve's final reduction.
-use super::{color, err, fmt_num, Figure};
+use super::{color, err, Figure};
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -220,12 +220,13 @@ impl ConvergenceFigure {
             .y_label_area_size(64)
             .build_cartesian_2d(xr, yr)
             .map_err(err)?;
+        let (xf, yf) = (super::labels::axis_format(chart.x_range().start, chart.x_range().end), super::labels::axis_format(chart.y_range().start, chart.y_range().end));
         chart
             .configure_mesh()
             .x_desc(xdesc)
             .y_desc(ydesc)
-            .x_label_formatter(&|v| fmt_num(*v))
-            .y_label_formatter(&|v| fmt_num(*v))
+            .x_label_formatter(&xf)
+            .y_label_formatter(&yf)
             .draw()
             .map_err(err)?;
         for c in &self.curves {

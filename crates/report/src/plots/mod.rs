@@ -172,9 +172,9 @@ impl plotters::coord::ranged1d::Ranged for Categories {
         if hint.weight().allow_light_points() || hint.max_num_points() == 0 {
             return Vec::new();
         }
-        // Label every slot if there is room, else every k-th.
-        let step = self.0.div_ceil(hint.max_num_points().max(1)).max(1);
-        (0..self.0).step_by(step).map(|i| i as f64 + 0.5).collect()
+        // Every slot: a bar without its name cannot be identified (issue 16); figures give each
+        // slot room for one line of text.
+        (0..self.0).map(|i| i as f64 + 0.5).collect()
     }
 
     fn range(&self) -> std::ops::Range<f64> {

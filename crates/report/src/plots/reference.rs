@@ -23,7 +23,7 @@ impl ReferenceFigure {
 
 impl Figure for ReferenceFigure {
     fn size(&self) -> (u32, u32) {
-        (1000, (self.items.len() as u32 * 60 + 160).clamp(280, 1600))
+        (1000, (self.items.len() as u32 * 60 + 160).max(280))
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
@@ -33,7 +33,7 @@ impl Figure for ReferenceFigure {
         }
         let labels = self.labels();
         let label_width = (labels.iter().map(|l| l.chars().count()).max().unwrap_or(4) as u32 * 7 + 16)
-            .clamp(80, 420);
+            .clamp(80, 900);
         
         let yr = super::Categories(n);
         let xr = bar_range(self.items.iter().flat_map(|c| [c.ours, c.paper]));
@@ -44,6 +44,7 @@ impl Figure for ReferenceFigure {
             .y_label_area_size(label_width)
             .build_cartesian_2d(xr, yr)
             .map_err(err)?;
+        let xf = super::labels::axis_format(chart.x_range().start, chart.x_range().end);
         let label_of = |v: &f64| {
             let i = n as f64 - v;
             if i < 0.0 {
@@ -55,7 +56,7 @@ impl Figure for ReferenceFigure {
             .configure_mesh()
             .disable_y_mesh()
             .x_desc(self.metric.as_str())
-            .x_label_formatter(&|v| fmt_num(*v))
+            .x_label_formatter(&xf)
             .y_label_formatter(&label_of)
             .y_label_style(("sans-serif", 13))
             .draw()

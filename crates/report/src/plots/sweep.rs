@@ -1,7 +1,7 @@
 //! A metric over a scene-parameter sweep (e.g. the outlier distance exponent e), one curve per
 //! method, one panel per builder, like Riemersma 2024's performance-drop figures. Vertical markers
 //! show measured drops (solid) and predicted drops (dashed, Riemersma eq. 14).
-use super::{color, err, fmt_num, Figure};
+use super::{color, err, Figure};
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -256,12 +256,13 @@ where
         .y_label_area_size(70)
         .build_cartesian_2d(xr, yr)
         .map_err(err)?;
+    let (xf, yf) = (super::labels::axis_format(chart.x_range().start, chart.x_range().end), super::labels::axis_format(chart.y_range().start, chart.y_range().end));
     chart
         .configure_mesh()
         .x_desc(x_desc)
         .y_desc(y_desc)
-        .x_label_formatter(&|v| fmt_num(*v))
-        .y_label_formatter(&|v| fmt_num(*v))
+        .x_label_formatter(&xf)
+        .y_label_formatter(&yf)
         .draw()
         .map_err(err)?;
 
