@@ -311,6 +311,7 @@ fn dense_plots_have_no_overlapping_labels() {
     assert_eq!((p.label_overlaps, p.labels_outside), (0, 0), "pareto labels");
 
     let bars = bars::BarsFigure {
+        shared_labels: false,
         caption: "dense bars".into(),
         panels: vec![bars::Panel {
             title: "t".into(),

@@ -21,7 +21,13 @@ pub struct Panel {
 pub struct BarsFigure {
     pub caption: String,
     pub panels: Vec<Panel>,
+    /// Small multiples: every panel has the same bars in the same order (one panel per scene),
+    /// named once, left of the first panel; the others are narrow.
+    pub shared_labels: bool,
 }
+
+/// Width of a small-multiple panel.
+const MULTIPLE_WIDTH: u32 = 260;
 
 impl BarsFigure {
     /// Room for the longest bar name in full (13 px sans-serif, about 8 px per character; the
@@ -36,12 +42,28 @@ impl BarsFigure {
 impl Figure for BarsFigure {
     fn size(&self) -> (u32, u32) {
         let n = self.panels.iter().map(|p| p.bars.len()).max().unwrap_or(1) as u32;
-        let w = self.panels.len().max(1) as u32 * (self.label_width() + 420);
+        let panels = self.panels.len().max(1) as u32;
+        let w = if self.shared_labels {
+            self.label_width() + panels * MULTIPLE_WIDTH
+        } else {
+            panels * (self.label_width() + 420)
+        };
         (w, n * 24 + 130)
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
         let root = root.titled(&self.caption, ("sans-serif", 22)).map_err(err)?;
+        if self.shared_labels {
+            let first = (self.label_width() + MULTIPLE_WIDTH) as i32;
+            let (mut area, mut rest) = root.split_horizontally(first);
+            for (i, panel) in self.panels.iter().enumerate() {
+                draw_panel(&area, panel, if i == 0 { self.label_width() } else { 0 })?;
+                let (a, r) = rest.split_horizontally(MULTIPLE_WIDTH as i32);
+                area = a;
+                rest = r;
+            }
+            return Ok(());
+        }
         let areas = root.split_evenly((1, self.panels.len().max(1)));
         for (panel, area) in self.panels.iter().zip(areas.iter()) {
             draw_panel(area, panel, self.label_width())?;
@@ -67,7 +89,7 @@ fn draw_panel<DB: DrawingBackend>(
         .caption(&panel.title, ("sans-serif", 17))
         .margin(10)
         .x_label_area_size(40)
-        .y_label_area_size(label_width)
+        .y_label_area_size(label_width.max(8))
         .build_cartesian_2d(xr.clone(), yr)
         .map_err(err)?;
     let fmt = labels::axis_format(xr.start, xr.end);
@@ -97,8 +119,10 @@ fn draw_panel<DB: DrawingBackend>(
                 .map_err(err)?;
         }
         let (_, cy) = chart.backend_coord(&(0.0, (n - i) as f64 - 0.5));
-        let (w, h) = labels::text_size(area, &b.label, 13.0);
-        labels::draw_at(area, &b.label, 13.0, (px.start - 6 - w, cy - h / 2), whole)?;
+        if label_width > 0 {
+            let (w, h) = labels::text_size(area, &b.label, 13.0);
+            labels::draw_at(area, &b.label, 13.0, (px.start - 6 - w, cy - h / 2), whole)?;
+        }
         let text = if b.value.is_finite() { fmt_num(b.value) } else { "n/a".into() };
         let (ex, _) = chart.backend_coord(&(if b.value.is_finite() { b.value.max(0.0) } else { 0.0 }, 0.0));
         let (w, h) = labels::text_size(area, &text, 12.0);

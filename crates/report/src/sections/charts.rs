@@ -38,6 +38,9 @@ pub fn per_scene(
     }
     let color_of = |r: &ResultRow| builds_all.iter().position(|b| b == build_label(r)).unwrap_or(0);
     let (mut pareto, mut sah, mut rays) = (Vec::new(), Vec::new(), Vec::new());
+    // With more than a few scenes, the SAH costs are one figure of small multiples (a panel per
+    // scene, the build chains named once) instead of a figure per scene.
+    let mut multiples: Vec<Panel> = Vec::new();
     for scene in &scenes {
         let scene_rows: Vec<&ResultRow> = rows.iter().filter(|r| r.scene == *scene).collect();
         let name = scene_rows[0].scene_name.as_str();
@@ -87,7 +90,24 @@ pub fn per_scene(
                 .collect()
         };
         let blabel = |r: &ResultRow| build_label(r).to_string();
+        if scenes.len() > SMALL_MULTIPLES_FROM {
+            let cost = |r: &ResultRow| if focus { r.focus_sah_cost.unwrap_or(f64::NAN) } else { r.sah_cost };
+            multiples.push(Panel {
+                title: format!("{name}{}", if focus { " (focus SAH)" } else { "" }),
+                x_desc: cost_label.into(),
+                bars: builds_all
+                    .iter()
+                    .enumerate()
+                    .map(|(i, b)| Bar {
+                        label: b.clone(),
+                        value: chains.iter().find(|r| build_label(r) == b).map_or(f64::NAN, |r| cost(r)),
+                        color_index: i,
+                    })
+                    .collect(),
+            });
+        } else {
         let fig = BarsFigure {
+            shared_labels: false,
             caption: format!("{name}: SAH cost per method"),
             panels: {
                 let mut p = vec![Panel {
@@ -106,6 +126,7 @@ pub fn per_scene(
             },
         };
         sah.extend(plot(&fig, &format!("sah_{name}"), &format!("{name}: SAH cost"), problems));
+        }
 
         let mut kinds: Vec<&str> = Vec::new();
         for k in scene_rows.iter().filter_map(|r| r.rays_kind.as_deref()) {
@@ -124,6 +145,7 @@ pub fn per_scene(
                 continue;
             }
             let fig = BarsFigure {
+                shared_labels: false,
                 caption: format!("{name}, {kind} rays"),
                 panels: vec![
                     Panel { title: "traversal steps per ray".into(), x_desc: "steps / ray".into(), bars: steps },
@@ -133,5 +155,17 @@ pub fn per_scene(
             rays.extend(plot(&fig, &format!("rays_{name}_{kind}"), &format!("{name}: {kind} rays"), problems));
         }
     }
+    if !multiples.is_empty() {
+        let c = (rows[0].c_t, rows[0].c_i);
+        let fig = BarsFigure {
+            caption: format!("SAH cost per build chain and scene (c_T = {}, c_I = {})", c.0, c.1),
+            panels: multiples,
+            shared_labels: true,
+        };
+        sah.extend(plot(&fig, "sah_all_scenes", "SAH cost per build chain, all scenes", problems));
+    }
     (pareto, sah, rays)
 }
+
+/// More scenes than this: SAH costs as small multiples.
+const SMALL_MULTIPLES_FROM: usize = 2;
