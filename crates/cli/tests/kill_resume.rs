@@ -52,7 +52,8 @@ fn untimed_rows(report: &Path) -> Vec<Vec<(String, String)>> {
             let h = &header[i];
             !(h.contains("seconds")
                 || h.contains("mrays")
-                || h == "slowdown"
+                || h.starts_with("slowdown")
+                || h.starts_with("auto_search_slowdown")
                 || h == "optimize_trace"
                 || h == "heatmap")
         })

@@ -4,7 +4,9 @@ use std::collections::BTreeMap;
 
 /// Flat, serializable result of one chain. The report turns rows into a polars DataFrame column by
 /// column through serde_json, so later issues add fields here (Option, so old rows still read) and
-/// the report picks them up. Times are medians over `repeat` runs.
+/// the report picks them up. Times are medians over `repeat` runs; every timed quantity `X` also has
+/// `X_spread` ((max - min) / median over its runs, `stages::spread`) and, where it is measured
+/// directly, `X_runs` (every run, run order).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct ResultRow {
     pub experiment: String,
@@ -42,6 +44,13 @@ pub struct ResultRow {
     pub valid: bool,
     pub bvh_hash: String,
     pub build_seconds: f64,
+    /// (max - min) / median of the build runs (`stages::spread`): the noise of `build_seconds`. None
+    /// with fewer than two runs (noise not measured).
+    #[serde(default)]
+    pub build_seconds_spread: Option<f64>,
+    /// Seconds of every timed build run, in run order (the stage artifact keeps them too).
+    #[serde(default)]
+    pub build_seconds_runs: Option<Vec<f64>>,
     /// Encoder of the encode stage (`morton`, `emc64-sort`, `emc64-var`); absent for builders that
     /// take no codes (the top-down ones).
     pub encoder: Option<String>,
@@ -50,6 +59,13 @@ pub struct ResultRow {
     pub encode_params: Option<String>,
     /// Median seconds of the encode stage (codes + sort).
     pub encode_seconds: Option<f64>,
+    /// (max - min) / median of the encode runs (`stages::spread`): the noise of `encode_seconds`. None
+    /// with fewer than two runs (noise not measured).
+    #[serde(default)]
+    pub encode_seconds_spread: Option<f64>,
+    /// Seconds of every timed encode run, in run order (the stage artifact keeps them too).
+    #[serde(default)]
+    pub encode_seconds_runs: Option<Vec<f64>>,
     /// Meaningful bits per code and the fraction of primitives sharing their code with the previous
     /// one in sorted order (precision lost to quantization; Riemersma 2024).
     pub code_bits: Option<u32>,
@@ -57,6 +73,13 @@ pub struct ResultRow {
     /// encode_seconds + build_seconds (+ optimize_seconds): the whole construction, what thesis
     /// table 11 compares.
     pub total_build_seconds: f64,
+    /// Range of the total over its stages' runs relative to the total: sum over the stages of
+    /// (max - min) / total_build_seconds, i.e. (largest - smallest total that one run of each
+    /// stage can add up to) / total. The stages' runs are not paired (each stage runs its own
+    /// repeats, possibly in another process), so there are no per-repeat totals to take a spread
+    /// of; no `_runs`. None when a stage has fewer than two runs.
+    #[serde(default)]
+    pub total_build_seconds_spread: Option<f64>,
     /// SAH cost of the build stage's tree (before optimization and compaction).
     pub build_sah_cost: Option<f64>,
     /// Optimizer of the optimize stage (`ibo`, `kensler-hc`, `kensler-sa`), absent without one.
@@ -66,6 +89,13 @@ pub struct ResultRow {
     /// Median seconds of the optimize stage (included in `total_build_seconds`: Bittner 2013's
     /// build_s is build plus optimization).
     pub optimize_seconds: Option<f64>,
+    /// (max - min) / median of the optimize runs (`stages::spread`): the noise of `optimize_seconds`. None
+    /// with fewer than two runs (noise not measured).
+    #[serde(default)]
+    pub optimize_seconds_spread: Option<f64>,
+    /// Seconds of every timed optimize run, in run order (the stage artifact keeps them too).
+    #[serde(default)]
+    pub optimize_seconds_runs: Option<Vec<f64>>,
     /// SAH cost right after the optimizer, before compaction (Bittner 2013's "cost"; `sah_cost` is
     /// then its "ocost" when the chain compacts).
     pub optimized_sah_cost: Option<f64>,
@@ -96,6 +126,13 @@ pub struct ResultRow {
     pub focus_sah_cost: Option<f64>,
     /// Median seconds of the compaction stage (0 when none).
     pub compact_seconds: f64,
+    /// (max - min) / median of the compaction runs (`stages::spread`): the noise of `compact_seconds`. None
+    /// with fewer than two runs (noise not measured).
+    #[serde(default)]
+    pub compact_seconds_spread: Option<f64>,
+    /// Seconds of every timed compaction run, in run order (the stage artifact keeps them too).
+    #[serde(default)]
+    pub compact_seconds_runs: Option<Vec<f64>>,
     /// Ray set (`primary:800x800`, `shadow:800x800`, `random:100000`), absent without a measure stage.
     pub rays_kind: Option<String>,
     pub rays: Option<u64>,
@@ -103,7 +140,17 @@ pub struct ResultRow {
     pub traversal_steps_per_ray: Option<f64>,
     pub intersections_per_ray: Option<f64>,
     pub trace_seconds: Option<f64>,
+    /// (max - min) / median of the trace runs (`stages::spread`): the noise of `trace_seconds`. None
+    /// with fewer than two runs (noise not measured).
+    #[serde(default)]
+    pub trace_seconds_spread: Option<f64>,
+    /// Seconds of every timed trace run, in run order (the stage artifact keeps them too).
+    #[serde(default)]
+    pub trace_seconds_runs: Option<Vec<f64>>,
     pub mrays_per_s: Option<f64>,
+    /// Spread of rays / seconds over the trace runs (derived from `trace_seconds_runs`).
+    #[serde(default)]
+    pub mrays_per_s_spread: Option<f64>,
     /// Layout stage (Kilian 2021): `bvh2`, `qbvh`, `octree`, `octree1`; absent without a layout
     /// stage (the measure stage then traces the flat BVH, i.e. bvh2). With `layout=auto` this is the
     /// layout the search picked and `layout_choice` says why.
@@ -129,6 +176,13 @@ pub struct ResultRow {
     pub peak_build_bytes: Option<u64>,
     /// Median seconds of the layout build.
     pub layout_seconds: Option<f64>,
+    /// (max - min) / median of the layout build runs (`stages::spread`): the noise of `layout_seconds`. None
+    /// with fewer than two runs (noise not measured).
+    #[serde(default)]
+    pub layout_seconds_spread: Option<f64>,
+    /// Seconds of every timed layout build run, in run order (the stage artifact keeps them too).
+    #[serde(default)]
+    pub layout_seconds_runs: Option<Vec<f64>>,
     /// SAH cost (thesis eq. 4) evaluated with the boxes the layout's traversal tests (quantized
     /// boxes for qbvh, implicit octant boxes for octrees).
     pub layout_sah_cost: Option<f64>,
@@ -139,7 +193,21 @@ pub struct ResultRow {
     /// Median seconds of the same rays through bvh2 of the same BVH, timed in the same run
     /// alternately with the layout's trace; `slowdown` = trace_seconds / bvh2_trace_seconds.
     pub bvh2_trace_seconds: Option<f64>,
+    /// (max - min) / median of the bvh2 anchor trace runs (`stages::spread`): the noise of `bvh2_trace_seconds`. None
+    /// with fewer than two runs (noise not measured).
+    #[serde(default)]
+    pub bvh2_trace_seconds_spread: Option<f64>,
+    /// Seconds of every timed bvh2 anchor trace run, in run order (the stage artifact keeps them too).
+    #[serde(default)]
+    pub bvh2_trace_seconds_runs: Option<Vec<f64>>,
+    /// With layout bvh2 the layout is its own anchor (one timing per run for both sides): 1 exactly.
     pub slowdown: Option<f64>,
+    /// Spread of the per-run slowdowns `slowdown_runs` (run i of the layout over run i of bvh2,
+    /// timed back to back): (max - min) / median. 0 for layout bvh2.
+    #[serde(default)]
+    pub slowdown_spread: Option<f64>,
+    #[serde(default)]
+    pub slowdown_runs: Option<Vec<f64>>,
     /// `layout=auto`: the candidates measured and why this one was picked.
     pub layout_choice: Option<String>,
     /// `layout=auto`: the search's time budget ran out before every candidate that could have
@@ -150,8 +218,58 @@ pub struct ResultRow {
     /// `layout=auto`: this row's `slowdown` (or, without rays, the search's) exceeds
     /// `auto_max_slowdown`: the choice does not hold here.
     pub auto_over_limit: Option<bool>,
+    /// `layout=auto`: the chosen layout's slowdown as the search measured it (its random-ray
+    /// sample, `AUTO_RUNS` alternated runs; 1 for bvh2) and the spread of its per-run ratios: the
+    /// estimate the choice was made on, beside the row's own `slowdown`.
+    #[serde(default)]
+    pub auto_search_slowdown: Option<f64>,
+    #[serde(default)]
+    pub auto_search_slowdown_spread: Option<f64>,
     /// Path of the primary-ray heat map PNG in the cache, when the ray set is primary.
     pub heatmap: Option<String>,
     /// Stage keys (hex) of this chain, stage name -> key, for provenance.
     pub keys: BTreeMap<String, String>,
+}
+
+impl ResultRow {
+    /// The row with every timing zeroed (medians, spreads, runs, rays per second, slowdowns, the
+    /// auto search's estimate), keeping which ones are present and how many runs they have: what
+    /// must be equal when a stage is recomputed, or run in another process or on another machine.
+    pub fn untimed(&self) -> ResultRow {
+        let z = |v: Option<f64>| v.map(|_| 0.0);
+        let zr = |v: &Option<Vec<f64>>| v.as_ref().map(|v| vec![0.0; v.len()]);
+        ResultRow {
+            build_seconds: 0.0,
+            build_seconds_spread: z(self.build_seconds_spread),
+            build_seconds_runs: zr(&self.build_seconds_runs),
+            encode_seconds: z(self.encode_seconds),
+            encode_seconds_spread: z(self.encode_seconds_spread),
+            encode_seconds_runs: zr(&self.encode_seconds_runs),
+            total_build_seconds: 0.0,
+            total_build_seconds_spread: z(self.total_build_seconds_spread),
+            optimize_seconds: z(self.optimize_seconds),
+            optimize_seconds_spread: z(self.optimize_seconds_spread),
+            optimize_seconds_runs: zr(&self.optimize_seconds_runs),
+            compact_seconds: 0.0,
+            compact_seconds_spread: z(self.compact_seconds_spread),
+            compact_seconds_runs: zr(&self.compact_seconds_runs),
+            trace_seconds: z(self.trace_seconds),
+            trace_seconds_spread: z(self.trace_seconds_spread),
+            trace_seconds_runs: zr(&self.trace_seconds_runs),
+            mrays_per_s: z(self.mrays_per_s),
+            mrays_per_s_spread: z(self.mrays_per_s_spread),
+            layout_seconds: z(self.layout_seconds),
+            layout_seconds_spread: z(self.layout_seconds_spread),
+            layout_seconds_runs: zr(&self.layout_seconds_runs),
+            bvh2_trace_seconds: z(self.bvh2_trace_seconds),
+            bvh2_trace_seconds_spread: z(self.bvh2_trace_seconds_spread),
+            bvh2_trace_seconds_runs: zr(&self.bvh2_trace_seconds_runs),
+            slowdown: z(self.slowdown),
+            slowdown_spread: z(self.slowdown_spread),
+            slowdown_runs: zr(&self.slowdown_runs),
+            auto_search_slowdown: z(self.auto_search_slowdown),
+            auto_search_slowdown_spread: z(self.auto_search_slowdown_spread),
+            ..self.clone()
+        }
+    }
 }

@@ -1262,6 +1262,17 @@ impl Runner {
                     seconds.push(secs(t));
                     first.get_or_insert(st);
                 }
+                Some(l) if matches!(l.layout, bvhlab_layout::Layout::Bvh2(_)) => {
+                    // bvh2 against bvh2 is the same traversal of the same tree: one timing per
+                    // run stands for both sides, so the slowdown is exactly 1 by construction
+                    // (timing it twice measured only noise: 5.1 was seen on a loaded machine).
+                    let t = Instant::now();
+                    let st = l.layout.trace(tris, &rays);
+                    let s = secs(t);
+                    seconds.push(s);
+                    bvh2_seconds.push(s);
+                    first.get_or_insert(st);
+                }
                 Some(l) => {
                     // The bvh2 anchor runs beside the layout on the same rays, alternating which
                     // goes first, so slowdown compares runs under the same machine conditions.
@@ -1679,6 +1690,73 @@ impl Runner {
             ..Default::default()
         };
         row.keys = keys;
+        // Issue 16: every timed quantity keeps its runs and their spread beside the median.
+        let runs = |v: &[f64]| Some(v.to_vec());
+        row.build_seconds_spread = spread(&build.seconds);
+        row.build_seconds_runs = runs(&build.seconds);
+        if let Some(e) = &encode {
+            row.encode_seconds_spread = spread(&e.seconds);
+            row.encode_seconds_runs = runs(&e.seconds);
+        }
+        if let Some(o) = &optimized {
+            row.optimize_seconds_spread = spread(&o.seconds);
+            row.optimize_seconds_runs = runs(&o.seconds);
+        }
+        if let Some(c) = &compact {
+            row.compact_seconds_spread = spread(&c.seconds);
+            row.compact_seconds_runs = runs(&c.seconds);
+        }
+        row.total_build_seconds_spread = {
+            let stages: Vec<&[f64]> = [
+                encode.as_ref().map(|e| e.seconds.as_slice()),
+                Some(build.seconds.as_slice()),
+                optimized.as_ref().map(|o| o.seconds.as_slice()),
+            ]
+            .into_iter()
+            .flatten()
+            .collect();
+            let range = |v: &[f64]| {
+                v.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+                    - v.iter().copied().fold(f64::INFINITY, f64::min)
+            };
+            (stages.iter().all(|v| spread(v).is_some()) && row.total_build_seconds > 0.0)
+                .then(|| stages.iter().map(|v| range(v)).sum::<f64>() / row.total_build_seconds)
+        };
+        if let Some(x) = &measure {
+            row.trace_seconds_spread = spread(&x.seconds);
+            row.trace_seconds_runs = runs(&x.seconds);
+            let mrays: Vec<f64> = x
+                .seconds
+                .iter()
+                .filter(|&&t| t > 0.0)
+                .map(|t| x.rays as f64 / t / 1e6)
+                .collect();
+            row.mrays_per_s_spread = (mrays.len() == x.seconds.len())
+                .then(|| spread(&mrays))
+                .flatten();
+            if let Some(b) = &x.bvh2_seconds {
+                row.bvh2_trace_seconds_spread = spread(b);
+                row.bvh2_trace_seconds_runs = runs(b);
+                let r = paired_ratios(&x.seconds, b);
+                if !r.is_empty() {
+                    row.slowdown_spread = spread(&r);
+                    row.slowdown_runs = Some(r);
+                }
+            }
+        }
+        if let Some(l) = &layout {
+            row.layout_seconds_spread = spread(&l.seconds);
+            row.layout_seconds_runs = runs(&l.seconds);
+            if let Some(c) = &l.choice {
+                let chosen = &c.candidates[c.chosen];
+                row.auto_search_slowdown = Some(chosen.slowdown);
+                row.auto_search_slowdown_spread = if chosen.layout == "bvh2" {
+                    Some(0.0)
+                } else {
+                    spread(&paired_ratios(&chosen.seconds, &chosen.bvh2_seconds))
+                };
+            }
+        }
         // The choice was judged on the search's random rays; this row's slowdown is measured
         // again on the chain's own rays (often primary, where compressed layouts lose more) and
         // under other machine load. Either one above the limit is flagged, never silent.

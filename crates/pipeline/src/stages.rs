@@ -36,7 +36,10 @@ pub const OPTIMIZE_VERSION: u32 = 2;
 /// 4: ray-triangle t in f64 (far rays could disagree with brute force in f32); axis-parallel rays
 ///    on a box plane are inside the slab (were culled).
 /// 5: ray sets at any scale: camera and ray lengths in f64 (1e-30 and 1e30 scenes got no hits).
-pub const MEASURE_VERSION: u32 = 5;
+/// 6: layout bvh2 is its own anchor: each run is timed once and stands for both sides
+///    (`bvh2_seconds == seconds`, slowdown exactly 1); timing the same traversal twice measured
+///    only noise (a bvh2-vs-bvh2 slowdown of 5.1 was seen on a loaded machine).
+pub const MEASURE_VERSION: u32 = 6;
 pub const FOCUS_VERSION: u32 = 1;
 pub const LAYOUT_VERSION: u32 = 2;
 
@@ -655,6 +658,33 @@ pub struct LayoutArtifact {
     pub summary: LayoutSummary,
 }
 
+/// Relative spread of repeated timings: (max - min) / median. None with fewer than two runs (no
+/// noise measured), a non-finite run or a median <= 0. `<name>_spread` in result rows.
+pub fn spread(v: &[f64]) -> Option<f64> {
+    if v.len() < 2 || v.iter().any(|x| !x.is_finite()) {
+        return None;
+    }
+    let m = median(v);
+    if m <= 0.0 {
+        return None;
+    }
+    let (lo, hi) = v
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
+    Some((hi - lo) / m)
+}
+
+/// Per-run slowdowns of alternated runs: `layout[i] / bvh2[i]` (run i of each side were timed
+/// back to back). Empty when the counts differ or a bvh2 run is not positive.
+pub fn paired_ratios(layout: &[f64], bvh2: &[f64]) -> Vec<f64> {
+    if layout.len() != bvh2.len() || bvh2.iter().any(|&b| !(b > 0.0)) {
+        return Vec::new();
+    }
+    layout.iter().zip(bvh2).map(|(a, b)| a / b).collect()
+}
+
 pub fn median(v: &[f64]) -> f64 {
     if v.is_empty() {
         return 0.0;
@@ -771,6 +801,20 @@ mod tests {
         assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
         assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), 2.5);
         assert_eq!(median(&[]), 0.0);
+    }
+
+    #[test]
+    fn spreads() {
+        assert_eq!(spread(&[1.0, 2.0, 3.0]), Some(1.0));
+        assert_eq!(spread(&[0.1, 0.1, 0.1, 0.1]), Some(0.0));
+        // One run: no noise measured (not zero noise).
+        assert_eq!(spread(&[0.5]), None);
+        assert_eq!(spread(&[]), None);
+        assert_eq!(spread(&[0.0, 0.0]), None);
+        assert_eq!(spread(&[1.0, f64::NAN]), None);
+        assert_eq!(paired_ratios(&[2.0, 3.0], &[1.0, 2.0]), vec![2.0, 1.5]);
+        assert!(paired_ratios(&[2.0, 3.0], &[1.0]).is_empty());
+        assert!(paired_ratios(&[2.0], &[0.0]).is_empty());
     }
 
     #[test]

@@ -275,16 +275,7 @@ fn stage(c: &Counts, s: &str) -> (u64, u64) {
 
 /// Rows without timings (which legitimately change when a stage is recomputed).
 fn untimed(rows: &[ResultRow]) -> Vec<ResultRow> {
-    rows.iter()
-        .map(|r| ResultRow {
-            build_seconds: 0.0,
-            compact_seconds: 0.0,
-            total_build_seconds: 0.0,
-            encode_seconds: r.encode_seconds.map(|_| 0.0),
-            optimize_seconds: r.optimize_seconds.map(|_| 0.0),
-            ..r.clone()
-        })
-        .collect()
+    rows.iter().map(ResultRow::untimed).collect()
 }
 
 #[test]

@@ -22,16 +22,7 @@ fn chains() -> Vec<ChainSpec> {
 }
 
 fn untimed(rows: &[ResultRow]) -> Vec<ResultRow> {
-    rows.iter()
-        .map(|r| ResultRow {
-            build_seconds: 0.0,
-            compact_seconds: 0.0,
-            total_build_seconds: 0.0,
-            trace_seconds: None,
-            mrays_per_s: None,
-            ..r.clone()
-        })
-        .collect()
+    rows.iter().map(ResultRow::untimed).collect()
 }
 
 /// Runs every chain with a fresh runner; returns rows and computed count.

@@ -58,6 +58,131 @@ fn bvh2_through_the_pipeline() {
     assert!(row.method.ends_with(" @bvh2"), "{}", row.method);
 }
 
+/// Issue 16: bvh2 timed against itself must never read as a slowdown (5.1 was seen on a loaded
+/// machine when both sides were timed separately). Layout bvh2 is its own anchor: exactly 1, with
+/// no spread, at any machine load; and so is `auto` when it picks bvh2.
+#[test]
+fn bvh2_against_itself_is_exactly_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = Runner::new(Store::open(dir.path()).unwrap());
+    let mut c = chain("binned-sah", Some("bvh2"), true);
+    c.repeat = 5;
+    let row = run(&mut r, &c);
+    assert_eq!(row.slowdown, Some(1.0));
+    assert_eq!(row.slowdown_spread, Some(0.0));
+    assert_eq!(row.slowdown_runs, Some(vec![1.0; 5]));
+    assert_eq!(row.trace_seconds, row.bvh2_trace_seconds);
+    assert_eq!(row.trace_seconds_runs, row.bvh2_trace_seconds_runs);
+    assert_eq!(row.trace_seconds_runs.as_ref().unwrap().len(), 5);
+    // The noise of the trace itself is still reported.
+    assert!(row.trace_seconds_spread.unwrap() >= 0.0);
+    // auto falling back to bvh2 (nothing qualifies under 10^-4): its row is bvh2 against itself.
+    let mut a = chain(
+        "binned-sah",
+        Some("auto:max_slowdown=0.0001,rays=500,budget=1e9"),
+        true,
+    );
+    a.repeat = 5;
+    let auto = run(&mut r, &a);
+    assert_eq!(auto.layout.as_deref(), Some("bvh2"));
+    assert_eq!(
+        (auto.slowdown, auto.slowdown_spread),
+        (Some(1.0), Some(0.0))
+    );
+    assert_eq!(
+        (auto.auto_search_slowdown, auto.auto_search_slowdown_spread),
+        (Some(1.0), Some(0.0))
+    );
+}
+
+/// Issue 16: every timed quantity keeps its runs and a spread ((max - min) / median).
+#[test]
+fn timed_fields_keep_runs_and_spreads() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = Runner::new(Store::open(dir.path()).unwrap());
+    let mut c = chain("lbvh", Some("qbvh"), true);
+    c.repeat = 3;
+    c.compact = "collapse".into();
+    let row = run(&mut r, &c);
+    let check = |name: &str, median: f64, spread: Option<f64>, runs: &Option<Vec<f64>>| {
+        let runs = runs.as_ref().unwrap_or_else(|| panic!("{name}_runs"));
+        assert_eq!(runs.len(), 3, "{name}");
+        assert_eq!(median, bvhlab_pipeline::stages::median(runs), "{name}");
+        assert_eq!(spread, bvhlab_pipeline::stages::spread(runs), "{name}");
+        assert!(spread.is_some(), "{name}_spread");
+    };
+    check(
+        "build_seconds",
+        row.build_seconds,
+        row.build_seconds_spread,
+        &row.build_seconds_runs,
+    );
+    check(
+        "encode_seconds",
+        row.encode_seconds.unwrap(),
+        row.encode_seconds_spread,
+        &row.encode_seconds_runs,
+    );
+    check(
+        "compact_seconds",
+        row.compact_seconds,
+        row.compact_seconds_spread,
+        &row.compact_seconds_runs,
+    );
+    check(
+        "trace_seconds",
+        row.trace_seconds.unwrap(),
+        row.trace_seconds_spread,
+        &row.trace_seconds_runs,
+    );
+    check(
+        "bvh2_trace_seconds",
+        row.bvh2_trace_seconds.unwrap(),
+        row.bvh2_trace_seconds_spread,
+        &row.bvh2_trace_seconds_runs,
+    );
+    check(
+        "layout_seconds",
+        row.layout_seconds.unwrap(),
+        row.layout_seconds_spread,
+        &row.layout_seconds_runs,
+    );
+    let ratios = row.slowdown_runs.as_ref().unwrap();
+    let (t, b) = (
+        row.trace_seconds_runs.as_ref().unwrap(),
+        row.bvh2_trace_seconds_runs.as_ref().unwrap(),
+    );
+    for i in 0..3 {
+        assert_eq!(ratios[i], t[i] / b[i]);
+    }
+    assert_eq!(row.slowdown_spread, bvhlab_pipeline::stages::spread(ratios));
+    assert!(row.mrays_per_s_spread.is_some());
+    // Stage runs are not paired: the total's spread is the sum of the stage ranges over the total.
+    let range = |v: &[f64]| {
+        v.iter().copied().fold(f64::MIN, f64::max) - v.iter().copied().fold(f64::MAX, f64::min)
+    };
+    let want = (range(row.encode_seconds_runs.as_ref().unwrap())
+        + range(row.build_seconds_runs.as_ref().unwrap()))
+        / row.total_build_seconds;
+    assert!((row.total_build_seconds_spread.unwrap() - want).abs() <= 1e-12 * want.max(1.0));
+    // No optimizer, no auto: nothing invented.
+    assert_eq!(
+        (row.optimize_seconds_spread, row.optimize_seconds_runs),
+        (None, None)
+    );
+    assert_eq!(row.auto_search_slowdown, None);
+    // One run: the noise is not measured (None), not zero.
+    let mut one = chain("binned-sah", Some("qbvh"), true);
+    one.repeat = 1;
+    let row = run(&mut r, &one);
+    assert_eq!(row.build_seconds_runs.as_ref().map(Vec::len), Some(1));
+    assert_eq!(
+        (row.build_seconds_spread, row.slowdown_spread),
+        (None, None)
+    );
+    assert_eq!(row.total_build_seconds_spread, None);
+}
+
 #[test]
 fn invalid_specs_are_input_errors() {
     let dir = tempfile::tempdir().unwrap();

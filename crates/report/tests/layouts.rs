@@ -2,7 +2,7 @@
 //! curves, the Pareto front on a hand-made example, findings that agree and differ, and no panic on
 //! rows with missing layout fields or a single layout.
 use bvhlab_pipeline::ResultRow;
-use bvhlab_report::layouts::{self, Metric, Verdict};
+use bvhlab_report::layouts::{self, Metric, Timed, Verdict};
 use bvhlab_report::write_report;
 
 struct L {
@@ -28,6 +28,8 @@ fn row(scene: &str, l: &L) -> ResultRow {
         c_t: 3.0,
         c_i: 2.0,
         sah_cost: 100.0,
+        inner_nodes: tris / 2 - 1,
+        leaves: tris / 2,
         valid: true,
         rays_kind: Some("random:1000".into()),
         rays: Some(1000),
@@ -51,6 +53,9 @@ fn row(scene: &str, l: &L) -> ResultRow {
         extra_tests_per_ray: Some(l.extra_tests),
         bvh2_trace_seconds: Some(0.1),
         slowdown: Some(l.slowdown),
+        // Measured rows: 5 runs within 1 %.
+        slowdown_spread: Some(0.01),
+        trace_seconds_spread: Some(0.01),
         ..Default::default()
     }
 }
@@ -245,4 +250,89 @@ fn auto_over_limit_and_budget_cut_are_flagged() {
     assert!(html.contains("at slowdown 1.8") && html.contains("max_slowdown 1.5"), "{html}");
     assert!(html.contains("1 layout=auto search(es) ran out of their time budget"), "{html}");
     assert!(html.contains("over limit</b>"), "{html}");
+}
+
+/// Issue 16, the noise rule: a time verdict only beyond max(spread_a + spread_b, TIE_PERCENT).
+#[test]
+fn noise_rule() {
+    let t = |value: f64, spread: f64| Timed { value, spread: Some(spread) };
+    // 10 % apart: resolved with 2 % + 3 % of noise, not with 6 % + 5 %.
+    assert_eq!(layouts::beyond_noise(t(1.1, 0.02), t(1.0, 0.03)), Some(1.1 / 1.0));
+    assert_eq!(layouts::beyond_noise(t(1.1, 0.06), t(1.0, 0.05)), None);
+    assert_eq!(layouts::faster(t(1.0, 0.02), t(1.1, 0.03)), Verdict::Agrees);
+    assert_eq!(layouts::faster(t(1.1, 0.02), t(1.0, 0.03)), Verdict::Differs);
+    assert_eq!(layouts::faster(t(1.1, 0.06), t(1.0, 0.05)), Verdict::WithinNoise);
+    // The floor: 1.5 % apart with no measured spread at all is within noise.
+    assert_eq!(layouts::faster(t(1.0, 0.0), t(1.015, 0.0)), Verdict::WithinNoise);
+    // One run (no spread): noise not measured, nothing resolved however far apart.
+    let one = Timed { value: 5.0, spread: None };
+    assert_eq!(layouts::faster(t(1.0, 0.01), one), Verdict::WithinNoise);
+    assert_eq!(layouts::at_most(one, 1.5), Verdict::WithinNoise);
+    // Limits are exact: 1.71 +- 20 % against 1.5 is within noise, 1.71 +- 5 % is over.
+    assert_eq!(layouts::at_most(t(1.71, 0.2), 1.5), Verdict::WithinNoise);
+    assert_eq!(layouts::at_most(t(1.71, 0.05), 1.5), Verdict::Differs);
+    assert_eq!(layouts::at_most(t(1.2, 0.05), 1.5), Verdict::Agrees);
+    // Ratios carry the sum of the spreads.
+    assert_eq!(t(2.0, 0.01).ratio(t(1.0, 0.02)), t(2.0, 0.03));
+
+    // In the findings: the same rows with a wide spread read "within noise", never agree/differ.
+    let mut rs = rows("noisy", DIFFERING);
+    for r in &mut rs {
+        r.slowdown_spread = Some(0.7);
+    }
+    for id in ["1b", "2a", "3", "4a", "4b"] {
+        let v = verdicts(&rs, id);
+        assert!(!v.is_empty() && v.iter().all(|c| c.1 == Verdict::WithinNoise), "{id}: {v:?}");
+    }
+    // Memory claims are not timings: unchanged.
+    assert_eq!(verdicts(&rs, "1a"), [("noisy".to_string(), Verdict::Differs)]);
+    let dir = tempfile::tempdir().unwrap();
+    let html = std::fs::read_to_string(write_report(dir.path(), "l", &rs, None).unwrap()).unwrap();
+    assert!(html.contains("<th>within noise</th>") && html.contains("<th>not applicable</th>"), "{html}");
+    assert!(html.contains("<span>within noise</span>"), "{html}");
+}
+
+/// Issue 16, bvh2 against itself: the pipeline makes it exactly 1 (tests/layout_stage.rs); were a
+/// self-comparison ever timed twice, a noisy ratio (the 5.1 once seen) must not read as a
+/// slowdown when its spread covers it.
+#[test]
+fn self_comparison_is_not_a_slowdown() {
+    let noisy = Timed { value: 5.1, spread: Some(4.5) };
+    assert_eq!(layouts::beyond_noise(noisy, Timed::exact(1.0)), None);
+    assert_eq!(layouts::at_most(noisy, 1.5), Verdict::WithinNoise);
+    assert_eq!(layouts::at_most(Timed::exact(1.0), 1.0), Verdict::WithinNoise);
+}
+
+/// Issue 16, the degenerate rule: a one-node structure (a collapsed octree with 0 bits per node)
+/// or an empty scene is "not applicable", not an agreement with "<= 2 bits per node".
+#[test]
+fn degenerate_cases_are_not_applicable() {
+    let mut rs = rows("one", AGREEING);
+    for r in rs.iter_mut().filter(|r| r.layout.as_deref().is_some_and(|l| l.starts_with("octree"))) {
+        r.layout_nodes = Some(1);
+        r.topology_bits_per_node = Some(0.0);
+        r.topology_bytes = Some(0);
+        r.topology_bytes_per_triangle = Some(0.0);
+    }
+    assert!(layouts::degenerate(&rs[5]) && !layouts::degenerate(&rs[1]));
+    for id in ["1a", "1b", "3", "6"] {
+        let v = verdicts(&rs, id);
+        assert!(!v.is_empty() && v.iter().all(|c| c.1 == Verdict::NotApplicable), "{id}: {v:?}");
+    }
+    // The qbvh claims are not about the octree: unchanged.
+    assert!(verdicts(&rs, "4a").iter().all(|c| c.1 == Verdict::Agrees));
+    // An empty scene: nothing applies.
+    let mut empty = rows("empty", AGREEING);
+    for r in &mut empty {
+        r.triangles = 0;
+        r.inner_nodes = 0;
+        r.leaves = 1;
+    }
+    assert!(empty.iter().all(layouts::degenerate));
+    for f in layouts::findings(&empty) {
+        assert!(f.cases.iter().all(|c| c.verdict == Verdict::NotApplicable), "{}: {:?}", f.id, f.cases);
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let html = std::fs::read_to_string(write_report(dir.path(), "l", &rs, None).unwrap()).unwrap();
+    assert!(html.contains("<span>not applicable</span>") && html.contains("degenerate: 10000 triangles"), "{html}");
 }

@@ -31,6 +31,8 @@ fn row(scene: &str, builder: &str, params: &str, cost: f64, secs: f64) -> Result
         valid: true,
         bvh_hash: "abc".into(),
         build_seconds: secs,
+        build_seconds_spread: Some(0.25),
+        build_seconds_runs: Some(vec![secs * 0.9, secs, secs * 1.15]),
         keys,
         ..Default::default()
     }
@@ -43,6 +45,8 @@ fn with_rays(mut r: ResultRow, kind: &str, steps: f64, isects: f64) -> ResultRow
     r.traversal_steps_per_ray = Some(steps);
     r.intersections_per_ray = Some(isects);
     r.trace_seconds = Some(0.5);
+    r.trace_seconds_spread = Some(0.04);
+    r.trace_seconds_runs = Some(vec![0.49, 0.5, 0.51]);
     r.mrays_per_s = Some(1.28);
     r
 }
@@ -176,6 +180,48 @@ fn full_report() {
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(lines.len(), rows.len() + 1);
     assert_eq!(lines[0], names.join(","));
+
+    // Issue 16: every timed quantity has `X_spread` (and measured ones `X_runs`) beside it, in
+    // results.csv and parquet alike; spreads are numbers, runs JSON lists.
+    for t in [
+        "build_seconds",
+        "encode_seconds",
+        "optimize_seconds",
+        "compact_seconds",
+        "trace_seconds",
+        "layout_seconds",
+        "bvh2_trace_seconds",
+        "slowdown",
+    ] {
+        for col in [format!("{t}_spread"), format!("{t}_runs")] {
+            assert!(names.contains(&col), "{col} in parquet");
+        }
+        let at = names.iter().position(|n| n == t).unwrap();
+        assert_eq!(names[at + 1], format!("{t}_spread"), "the spread right after {t}");
+    }
+    for col in ["total_build_seconds_spread", "mrays_per_s_spread", "auto_search_slowdown", "auto_search_slowdown_spread"] {
+        assert!(names.contains(&col.to_string()), "{col}");
+    }
+    assert_eq!(df.column("build_seconds_spread").unwrap().dtype(), &DataType::Float64);
+    assert_eq!(df.column("build_seconds_spread").unwrap().f64().unwrap().get(0), Some(0.25));
+    assert_eq!(df.column("trace_seconds_spread").unwrap().null_count(), rows.len() - 6);
+    let header: Vec<&str> = lines[0].split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name} in results.csv"));
+    let (spread, trace_spread) = (col("build_seconds_spread"), col("trace_seconds_spread"));
+    // Row 1 is a primary-ray row; quoted cells (the runs lists) hold commas.
+    let mut cells: Vec<String> = vec![String::new()];
+    let mut quoted = false;
+    for ch in lines[1].chars() {
+        match ch {
+            '"' => quoted = !quoted,
+            ',' if !quoted => cells.push(String::new()),
+            _ => cells.last_mut().unwrap().push(ch),
+        }
+    }
+    assert_eq!(cells.len(), header.len());
+    assert_eq!(cells[spread], "0.25", "{}", lines[1]);
+    assert_eq!(cells[trace_spread], "0.04", "{}", lines[1]);
+    assert_eq!(cells[col("trace_seconds_runs")], "[0.49,0.5,0.51]", "runs as a JSON list: {}", lines[1]);
 }
 
 #[test]

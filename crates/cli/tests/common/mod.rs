@@ -79,7 +79,8 @@ pub fn untimed_rows(report: &Path) -> Vec<Vec<(String, String)>> {
                     !(h.contains("seconds")
                         || h.contains("mrays")
                         || h.contains("machine")
-                        || *h == "slowdown"
+                        || h.starts_with("slowdown")
+                        || h.starts_with("auto_search_slowdown")
                         || *h == "optimize_trace"
                         || *h == "heatmap"
                         || *h == "threads")
