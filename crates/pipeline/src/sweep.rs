@@ -341,3 +341,29 @@ pub fn counts_since(now: &Counts, before: &Counts) -> Counts {
     }
     counts
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seconds_in_words() {
+        assert_eq!(format_seconds(3.14), "3.1 s");
+        assert_eq!(format_seconds(-1.0), "0.0 s");
+        assert_eq!(format_seconds(65.0), "1 min 05 s");
+        assert_eq!(format_seconds(7384.0), "2 h 03 min");
+    }
+
+    #[test]
+    fn closing_line_in_words() {
+        let counts = Counts {
+            computed: 12,
+            cached: 433,
+            ..Counts::default()
+        };
+        assert_eq!(
+            closing_line("quick", &counts, 3.1, Some(Path::new("reports/quick/index.html"))),
+            "quick: 445 stages, 12 computed, 433 from cache, 3.1 s; report reports/quick/index.html"
+        );
+    }
+}
