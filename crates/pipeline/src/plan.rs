@@ -185,6 +185,7 @@ pub fn plan(exp: &Experiment, runner: &mut Runner) -> Result<ExperimentPlan> {
                         tris,
                         rays,
                         layout_name.as_deref(),
+                        &c.scene,
                     );
                     let mut upto = c.clone();
                     if info.stage != "measure" {
