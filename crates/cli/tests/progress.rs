@@ -119,3 +119,28 @@ fn piped_sweep_prints_progress_lines_and_a_closing_line() {
         "{last}"
     );
 }
+
+#[test]
+fn piped_shard_prints_progress_lines_and_a_closing_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let (json, err) = sweep(dir.path(), &["--shard", "1/2"], Some("0.001"));
+    let owned = json["owned"].as_u64().unwrap();
+    let all = err.join("\n");
+    assert!(
+        err[0].starts_with(&format!(
+            "progress: progress-test shard 1/2: {owned} stages, {owned} to compute (estimated "
+        )),
+        "{all}"
+    );
+    assert!(
+        err.iter()
+            .any(|l| l.starts_with("progress: progress-test shard 1/2: ")
+                && l.contains(" elapsed, ETA ")),
+        "{all}"
+    );
+    let last = err.last().unwrap();
+    assert!(
+        last.starts_with("progress-test shard 1/2: ") && last.contains(" computed, "),
+        "{all}"
+    );
+}
