@@ -6,6 +6,8 @@ command -v pkg-config >/dev/null 2>&1 || need+=(pkg-config)
 # plotters renders text through fontconfig/freetype (report crate): headers to build, a font to draw.
 pkg-config --exists fontconfig 2>/dev/null || need+=(libfontconfig1-dev)
 ls /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf >/dev/null 2>&1 || need+=(fonts-dejavu-core)
+# The report is checked in headless Chromium (crates/cli/tests/browser.rs): images, links, scripts.
+command -v chromium >/dev/null 2>&1 || need+=(chromium)
 if [ ${#need[@]} -gt 0 ]; then
   if [ "$(id -u)" = 0 ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}" >/dev/null

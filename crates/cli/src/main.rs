@@ -1,11 +1,10 @@
 //! `bvhlab`: sweep experiments, evaluate one chain, inspect the cache, list scene generators and
 //! methods (builders, encoders, optimizers, layouts).
 use bvhlab_pipeline::{
-    estimate, run::Runner, store, sweep::sweep, ChainSpec, Error, Experiment, RaySpec, Registry, Result, Store,
+    estimate, run::Runner, store, sweep::{closing_line, sweep, ProgressMode}, ChainSpec, Error, Experiment, RaySpec, Registry, Result, Store,
 };
 use clap::{Parser, Subcommand};
 use std::collections::BTreeMap;
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 mod fetch;
@@ -288,7 +287,7 @@ fn run(cli: Cli) -> Result<()> {
                 check_memory(&exp.chains(), max_memory.as_deref())?;
                 let store = Store::open(store::resolve_root(cache.as_deref()))?;
                 let mut runner = Runner::new(store);
-                let progress = std::io::stderr().is_terminal();
+                let progress = ProgressMode::stderr();
                 let r = bvhlab_pipeline::with_threads(threads, || {
                     bvhlab_pipeline::plan::run_shard(&exp, &mut runner, i, n, progress)
                 })??;
@@ -301,6 +300,7 @@ fn run(cli: Cli) -> Result<()> {
                         "seconds": r.seconds,
                     })
                 );
+                eprintln!("{}", closing_line(&format!("{} shard {}/{}", exp.name, r.shard, r.shards), &r.counts, r.seconds, None));
                 return Ok(());
             }
             if report_only {
@@ -310,9 +310,10 @@ fn run(cli: Cli) -> Result<()> {
             // A sweep writes one row per chain: refuse before computing anything.
             keep_larger_report(&out_dir, exp.chains().len(), force)?;
             check_memory(&exp.chains(), max_memory.as_deref())?;
+            let t_start = std::time::Instant::now();
             let store = Store::open(store::resolve_root(cache.as_deref()))?;
             let mut runner = Runner::new(store);
-            let progress = std::io::stderr().is_terminal();
+            let progress = ProgressMode::stderr();
             let res = bvhlab_pipeline::with_threads(threads, || sweep(&exp, &mut runner, progress))??;
             let warnings: std::collections::BTreeSet<&String> =
                 res.rows.iter().filter_map(|r| r.precision_warning.as_ref()).collect();
@@ -332,6 +333,7 @@ fn run(cli: Cli) -> Result<()> {
                 "seconds": res.seconds,
             });
             println!("{summary}");
+            eprintln!("{}", closing_line(&exp.name, &res.counts, t_start.elapsed().as_secs_f64(), Some(&report)));
             Ok(())
         }
         Cmd::Slurm {
@@ -721,6 +723,8 @@ fn report_only_sweep(
             "seconds": t0.elapsed().as_secs_f64(),
         })
     );
+    let label = format!("{} (report only, {} of {} chains)", exp.name, rows.len(), p.chains.len());
+    eprintln!("{}", closing_line(&label, &runner.counts, t0.elapsed().as_secs_f64(), Some(&report)));
     if missing_chains.is_empty() {
         Ok(())
     } else {

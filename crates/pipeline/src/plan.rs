@@ -185,6 +185,7 @@ pub fn plan(exp: &Experiment, runner: &mut Runner) -> Result<ExperimentPlan> {
                         tris,
                         rays,
                         layout_name.as_deref(),
+                        &c.scene,
                     );
                     let mut upto = c.clone();
                     if info.stage != "measure" {
@@ -312,7 +313,7 @@ pub fn run_shard(
     runner: &mut Runner,
     shard: usize,
     shards: usize,
-    progress: bool,
+    progress: crate::sweep::ProgressMode,
 ) -> Result<ShardResult> {
     let t0 = Instant::now();
     let before = runner.counts.clone();
@@ -321,20 +322,17 @@ pub fn run_shard(
     let mine = shard_nodes(&plan, &owner, shard - 1);
     let est: f64 = mine.iter().map(|&i| plan.nodes[i].est_seconds).sum();
     let owned_cached = mine.iter().filter(|&&i| plan.nodes[i].cached).count();
-    let bar = if progress {
-        let b = indicatif::ProgressBar::with_draw_target(
-            Some(mine.len() as u64),
-            indicatif::ProgressDrawTarget::stderr(),
-        );
-        if let Ok(style) = indicatif::ProgressStyle::with_template(
-            "{elapsed_precise} [{bar:30}] {pos}/{len} {msg}",
-        ) {
-            b.set_style(style.progress_chars("=> "));
-        }
-        b
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
+    let missing = mine.iter().filter(|&&i| !plan.nodes[i].cached).count() as u64;
+    let bar = crate::sweep::Progress::start(
+        progress,
+        &format!("{} shard {shard}/{shards}", exp.name),
+        mine.len() as u64,
+        missing,
+        mine.iter()
+            .filter(|&&i| !plan.nodes[i].cached)
+            .map(|&i| plan.nodes[i].est_seconds)
+            .sum(),
+    );
     let mut last: Option<(u32, usize)> = None;
     for &i in &mine {
         let n = &plan.nodes[i];
@@ -344,7 +342,7 @@ pub fn run_shard(
         }
         last = Some(here);
         bar.set_message(format!(
-            "shard {shard}/{shards} {} {} {}",
+            "{} {} {}",
             n.stage,
             crate::stages::scene_name(&n.scene),
             &n.key.hex()[..12]
@@ -354,9 +352,9 @@ pub fn run_shard(
             let spec = &plan.chains[n.chains[0]];
             runner.ensure_node(spec, n.stage)?;
         }
-        bar.inc(1);
+        bar.advance(1, if n.cached { 0.0 } else { n.est_seconds });
     }
-    bar.finish_and_clear();
+    bar.finish();
     runner.forget();
     Ok(ShardResult {
         shard,
