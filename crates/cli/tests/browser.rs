@@ -1,8 +1,9 @@
 //! The report in a real browser (issue 16 item 8): the quick report opened in headless Chromium
 //! must have no missing or undecodable image, no broken local link (a file that does not exist, or
 //! a `#anchor` with no element of that id) and no script error. Also saves the first screen
-//! (1400x900) and an A4 print of the report under `target/browser/` and prints the page count
-//! (asserted <= 25 only with `BVHLAB_ASSERT_PAGES=1`: the report is being reworked).
+//! (1400x900) and an A4 print of the report under `target/browser/`; asserts that the summary
+//! (`#summary`) ends within that first screen, that the page is no wider than it, and that the
+//! print has at most 25 pages.
 //!
 //! How: Chromium loads a copy of the page (same directory, so every relative URL resolves the
 //! same) with a script appended that, after `load`, decodes every `<img>` again and writes the ones
@@ -59,6 +60,11 @@ window.addEventListener('load', function () {
     pre.id = 'bvhlab-browser-check';
     pre.textContent = JSON.stringify(bad.filter(function (b) { return b !== null; }));
     document.body.appendChild(pre);
+    var s = document.getElementById('summary');
+    var q = document.createElement('pre');
+    q.id = 'bvhlab-summary-bottom';
+    q.textContent = s ? String(Math.ceil(s.getBoundingClientRect().bottom)) + ' ' + String(document.documentElement.scrollWidth) : 'none';
+    document.body.appendChild(q);
   });
 });
 </script>"#;
@@ -357,6 +363,12 @@ fn console_errors(stderr: &str) -> Vec<String> {
 
 /// Opens `page` in Chromium and lists what is wrong with it (empty: nothing).
 fn page_problems(exe: &Path, page: &Path) -> Vec<String> {
+    page_check(exe, page).0
+}
+
+/// `page_problems` and the text of `#bvhlab-summary-bottom`: the bottom edge of the element
+/// `#summary` in pixels at 1400x900 and the page's width, or `none`.
+fn page_check(exe: &Path, page: &Path) -> (Vec<String>, String) {
     let html = std::fs::read_to_string(page).unwrap();
     let probe = page.with_file_name(".bvhlab-browser-check.html");
     let with_check = match html.rfind("</body>") {
@@ -386,7 +398,15 @@ fn page_problems(exe: &Path, page: &Path) -> Vec<String> {
         }
     }
     problems.extend(link_problems(&dom, page));
-    problems
+    let marker = "<pre id=\"bvhlab-summary-bottom\">";
+    let summary = dom
+        .find(marker)
+        .map(|i| {
+            let rest = &dom[i + marker.len()..];
+            rest[..rest.find("</pre>").unwrap_or(rest.len())].to_string()
+        })
+        .unwrap_or_else(|| "no check".into());
+    (problems, summary)
 }
 
 /// Pages of a PDF: its `/Type /Page` objects (not `/Pages`).
@@ -539,7 +559,7 @@ fn quick_report_in_headless_chromium() {
     let page = report.join("index.html");
     assert!(page.is_file(), "{summary}");
 
-    let problems = page_problems(&exe, &page);
+    let (problems, summary_box) = page_check(&exe, &page);
 
     let shot = art.join("first-screen.png");
     let _ = std::fs::remove_file(&shot);
@@ -571,7 +591,7 @@ fn quick_report_in_headless_chromium() {
     );
     let pages = pdf_pages(&std::fs::read(&pdf).unwrap());
     let lines = format!(
-        "first screen (1400x900): {}\nA4 print: {} ({pages} pages; target <= 25)\nproblems: {}\n",
+        "first screen (1400x900): {}\nsummary bottom, page width: {summary_box} px\nA4 print: {} ({pages} pages; target <= 25)\nproblems: {}\n",
         shot.display(),
         pdf.display(),
         problems.len()
@@ -582,7 +602,15 @@ fn quick_report_in_headless_chromium() {
         problems.is_empty(),
         "the quick report in Chromium: {problems:#?}"
     );
-    if std::env::var("BVHLAB_ASSERT_PAGES").as_deref() == Ok("1") {
+    // The summary is the first screen: it ends within 900 px, and the page is no wider than the
+    // 1400 px window (issue 16).
+    let (bottom, width) = summary_box
+        .split_once(' ')
+        .map(|(b, w)| (b.parse::<i64>().unwrap_or(i64::MAX), w.parse::<i64>().unwrap_or(i64::MAX)))
+        .unwrap_or_else(|| panic!("no #summary in the report ({summary_box})"));
+    assert!(bottom <= 900, "#summary ends at {bottom} px, below the first 1400x900 screen");
+    assert!(width <= 1400, "the page is {width} px wide, wider than the 1400 px window");
+    {
         assert!(
             pages <= 25,
             "the quick report prints on {pages} A4 pages (target <= 25)"

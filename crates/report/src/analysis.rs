@@ -44,6 +44,52 @@ pub fn total_build_seconds(r: &ResultRow) -> f64 {
     total + r.compact_seconds
 }
 
+/// Fastest and slowest whole construction over the timed runs: the sums of each stage's fastest
+/// and slowest run (the stages' runs are not paired, so this bounds every combination). None when
+/// a stage was timed once or rows predate the runs columns.
+pub fn total_build_range(r: &ResultRow) -> Option<(f64, f64)> {
+    let mut lo = 0.0;
+    let mut hi = 0.0;
+    let mut any = false;
+    for (median, runs) in [
+        (Some(r.build_seconds), &r.build_seconds_runs),
+        (r.encode_seconds, &r.encode_seconds_runs),
+        (r.optimize_seconds, &r.optimize_seconds_runs),
+        (Some(r.compact_seconds), &r.compact_seconds_runs),
+    ] {
+        if median.filter(|m| *m > 0.0).is_none() {
+            continue;
+        }
+        let runs = runs.as_ref().filter(|v| v.len() > 1)?;
+        let (a, b) = runs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
+        lo += a;
+        hi += b;
+        any = true;
+    }
+    any.then_some((lo, hi))
+}
+
+/// Timing spread above which a row's timing is called noisy on the first screen: the fastest
+/// and slowest run differ by more than this fraction of the median.
+pub const NOISY_SPREAD: f64 = 0.25;
+
+/// (quantity, median, spread) of each timing of a row whose spread exceeds `NOISY_SPREAD`.
+pub fn noisy_timings(r: &ResultRow) -> Vec<(&'static str, f64, f64)> {
+    let mut out = Vec::new();
+    for (name, median, spread) in [
+        ("construction", Some(total_build_seconds(r)), r.total_build_seconds_spread),
+        ("trace", r.trace_seconds, r.trace_seconds_spread),
+        ("slowdown vs bvh2", r.slowdown, r.slowdown_spread),
+    ] {
+        if let (Some(m), Some(s)) = (median, spread) {
+            if s > NOISY_SPREAD {
+                out.push((name, m, s));
+            }
+        }
+    }
+    out
+}
+
 /// `k=v,k=v` -> map (pairs without `=` are ignored).
 pub fn parse_params(s: &str) -> BTreeMap<String, String> {
     s.split(',')

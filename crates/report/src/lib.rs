@@ -317,6 +317,21 @@ pub fn write_report_with(
     );
     flags_section.extra = sections::tables::flags_table(&cost_flags).into_string();
     sections.push(flags_section);
+    let mut noise_section = Section::new(
+        "noise",
+        "Timing noise",
+        format!(
+            "Every timed quantity is the median of the experiment's repeats; its spread is (slowest - fastest) / \
+             median (results.csv: <name>_spread, <name>_runs). Rows whose construction, trace or slowdown spread \
+             exceeds {} are listed: their times are a property of the machine's load as much as of the method. \
+             Verdicts on times elsewhere in this report read \"within noise\" unless the difference exceeds the \
+             spreads. Re-run on a quiet machine (or with more repeats) to resolve them.",
+            analysis::NOISY_SPREAD
+        ),
+        Vec::new(),
+    );
+    noise_section.extra = sections::tables::noise_table(rows).into_string();
+    sections.push(noise_section);
 
     let chips = summary_chips(rows, &problems, &cost_flags, options, &groups);
     let summary = sections::summary::render(&sections::summary::scene_lines(rows), &chips, reference.as_ref());
@@ -367,6 +382,28 @@ fn summary_chips(
             format!("{} above {}x the best cost", plural(cost_flags.len(), "method", "methods"), analysis::FLAG_RATIO),
             "#flags",
         ));
+    }
+    let noisy = sections::tables::noisy_rows(rows).len();
+    if noisy > 0 {
+        chips.push(Chip::new(
+            "note",
+            format!("{} with timing spread above {}", plural(noisy, "noisy timing", "noisy timings"), analysis::NOISY_SPREAD),
+            "#noise",
+        ));
+    }
+    let verdicts: Vec<layouts::Verdict> =
+        layouts::findings(rows).iter().flat_map(|f| f.cases.iter().map(|c| c.verdict)).collect();
+    let count = |v: layouts::Verdict| verdicts.iter().filter(|x| **x == v).count();
+    let (na, wn) = (count(layouts::Verdict::NotApplicable), count(layouts::Verdict::WithinNoise));
+    if na > 0 {
+        chips.push(Chip::new("note", plural(na, "verdict not applicable (degenerate case)", "verdicts not applicable (degenerate cases)"), "#layouts"));
+    }
+    if wn > 0 {
+        chips.push(Chip::new("note", plural(wn, "timing verdict within noise", "timing verdicts within noise"), "#layouts"));
+    }
+    let over = rows.iter().filter(|r| r.auto_over_limit == Some(true)).count();
+    if over > 0 {
+        chips.push(Chip::new("bad", plural(over, "auto layout over its slowdown limit", "auto layouts over their slowdown limit"), "#layouts"));
     }
     if groups.len() > 1 || rows.iter().any(|r| r.machine_mixed) {
         chips.push(Chip::new("note", "timings from several CPU models", "#machines"));

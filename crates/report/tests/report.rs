@@ -340,11 +340,12 @@ fn dense_plots_have_no_overlapping_labels() {
             method_index: i,
             seconds: 1e-3 * (1.0 + 0.05 * i as f64),
             sah_cost: cost,
+            seconds_range: Some((0.9e-3 * (1.0 + 0.05 * i as f64), 1.3e-3 * (1.0 + 0.05 * i as f64))),
         });
     }
     // Identical points (layouts of one build used to stack on the build's point).
     for i in 0..4 {
-        points.push(pareto::ParetoPoint { label: format!("same {i}"), method_index: 0, seconds: 2e-3, sah_cost: 9.0 });
+        points.push(pareto::ParetoPoint { label: format!("same {i}"), method_index: 0, seconds: 2e-3, sah_cost: 9.0, seconds_range: None });
     }
     let fig = pareto::ParetoFigure {
         scene: "dense".into(),

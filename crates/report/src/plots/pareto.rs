@@ -39,6 +39,8 @@ pub struct ParetoPoint {
     pub method_index: usize,
     pub seconds: f64,
     pub sah_cost: f64,
+    /// Fastest and slowest of the timed runs (an error bar); None with one run.
+    pub seconds_range: Option<(f64, f64)>,
 }
 
 pub struct ParetoFigure {
@@ -104,7 +106,10 @@ impl ParetoFigure {
             .map_err(err)?;
             return Ok(Vec::new());
         }
-        let (xmin, xmax) = min_max(pts.iter().map(|p| p.seconds));
+        let (xmin, xmax) = min_max(pts.iter().flat_map(|p| {
+            let (lo, hi) = p.seconds_range.filter(|(lo, _)| *lo > 0.0).unwrap_or((p.seconds, p.seconds));
+            [p.seconds, lo, hi]
+        }));
         let (ymin, ymax) = min_max(pts.iter().map(|p| p.sah_cost));
         // Log y when the costs span more than a factor 20 (a method that failed on a far outlier
         // would squash every other point onto one line).
@@ -208,6 +213,22 @@ impl ParetoFigure {
             .label("Pareto front")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
 
+        // Error bars: from the fastest to the slowest run (issue 16: noise made visible).
+        for p in &pts {
+            if let Some((lo, hi)) = p.seconds_range.filter(|(lo, hi)| lo.is_finite() && hi.is_finite() && *lo > 0.0) {
+                let y = p.sah_cost;
+                chart
+                    .draw_series(std::iter::once(PathElement::new(vec![(lo, y), (hi, y)], BLACK.mix(0.45).stroke_width(1))))
+                    .map_err(err)?;
+                for x in [lo, hi] {
+                    chart
+                        .draw_series(std::iter::once(
+                            EmptyElement::at((x, y)) + PathElement::new(vec![(0, -4), (0, 4)], BLACK.mix(0.45)),
+                        ))
+                        .map_err(err)?;
+                }
+            }
+        }
         let px: Vec<(i32, i32)> = xy.iter().map(|p| chart.backend_coord(p)).collect();
         let mut markers = Vec::new();
         for (k, p) in pts.iter().enumerate() {

@@ -72,6 +72,7 @@ pub fn per_scene(
                         // Encode + build + optimize + compaction: Morton builders pay for their
                         // codes and sort, optimizer chains for their passes.
                         seconds: analysis::total_build_seconds(r),
+                        seconds_range: analysis::total_build_range(r),
                         sah_cost: if focus { r.focus_sah_cost.unwrap_or(f64::NAN) } else { r.sah_cost },
                     })
                     .collect(),

@@ -78,7 +78,7 @@ margin:2px 4px 2px 0;border:1px solid #999;text-decoration:none;color:#222}.chip
 input.filter{margin:0.3em 0;padding:2px 4px;width:24em}\
 table.sortable th{cursor:pointer}table.sortable th[data-dir=asc]::after{content:' \\25B2'}\
 table.sortable th[data-dir=desc]::after{content:' \\25BC'}\
-@media print{details.sec>summary{list-style:none}a{color:#222;text-decoration:none}}";
+@media print{@page{size:A4}details.sec>summary{list-style:none}a{color:#222;text-decoration:none}}";
 
 /// Sorting and filtering of tables, and opening the section a link points into.
 const SCRIPT: &str = "(function(){\

@@ -29,8 +29,8 @@ pub fn sortable(id: &str, head: &[&str], rows: impl Iterator<Item = (bool, Vec<(
 pub fn results(rows: &[ResultRow]) -> Markup {
     let head = [
         "scene", "method", "rays", "triangles", "dropped", "SAH cost", "focus SAH", "built SAH", "optimized SAH",
-        "encode s", "build s", "optimize s", "passes", "compact s", "total build s", "dup codes", "inner SA",
-        "leaf SA", "refs/leaf", "leaves", "depth", "bytes/tri", "steps/ray", "isects/ray", "Mrays/s", "valid",
+        "encode s", "build s", "optimize s", "passes", "compact s", "total build s", "build spread", "dup codes", "inner SA",
+        "leaf SA", "refs/leaf", "leaves", "depth", "bytes/tri", "steps/ray", "isects/ray", "Mrays/s", "trace spread", "valid",
     ];
     let body = html! {
         @if rows.is_empty() {
@@ -59,6 +59,7 @@ pub fn results(rows: &[ResultRow]) -> Markup {
                     n(r.optimize_passes.map(|p| p.to_string()).unwrap_or_default()),
                     n(fmt_num(r.compact_seconds)),
                     n(fmt_num(crate::analysis::total_build_seconds(r))),
+                    n(r.total_build_seconds_spread.map(|s| format!("{:.0} %", s * 100.0)).unwrap_or_default()),
                     n(opt(r.duplicate_code_fraction)),
                     n(fmt_num(r.inner_sa_ratio)),
                     n(fmt_num(r.leaf_sa_ratio)),
@@ -69,6 +70,7 @@ pub fn results(rows: &[ResultRow]) -> Markup {
                     n(opt(r.traversal_steps_per_ray)),
                     n(opt(r.intersections_per_ray)),
                     n(opt(r.mrays_per_s)),
+                    n(r.trace_seconds_spread.map(|s| format!("{:.0} %", s * 100.0)).unwrap_or_default()),
                     t(if r.valid { "yes" } else { "NO" }),
                 ])
             })))
@@ -137,4 +139,39 @@ pub fn flags_table(flags: &[Flag]) -> Markup {
             }
         }
     }
+}
+
+/// Rows with a noisy timing, one per (scene, method, ray set).
+pub fn noisy_rows(rows: &[ResultRow]) -> Vec<(&ResultRow, Vec<(&'static str, f64, f64)>)> {
+    rows.iter()
+        .map(|r| (r, crate::analysis::noisy_timings(r)))
+        .filter(|(_, n)| !n.is_empty())
+        .collect()
+}
+
+pub fn noise_table(rows: &[ResultRow]) -> Markup {
+    let noisy = noisy_rows(rows);
+    if noisy.is_empty() {
+        return html! { p.ok { "No timing spread above the threshold." } };
+    }
+    let head = ["scene", "method", "rays", "quantity", "median", "spread"];
+    sortable(
+        "noise-table",
+        &head,
+        noisy.iter().flat_map(|(r, n)| {
+            n.iter().map(move |(q, m, s)| {
+                (
+                    r.valid,
+                    vec![
+                        (false, r.scene_name.clone()),
+                        (false, r.method.clone()),
+                        (false, r.rays_kind.clone().unwrap_or_default()),
+                        (false, q.to_string()),
+                        (true, fmt_num(*m)),
+                        (true, format!("{:.0} %", s * 100.0)),
+                    ],
+                )
+            })
+        }),
+    )
 }
