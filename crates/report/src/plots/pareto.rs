@@ -272,6 +272,23 @@ impl ParetoFigure {
         let bounds = labels::plot_rect(xr.clone(), yr.clone());
         let legend = labels::Rect { x0: xr.end - 260, y0: yr.start, x1: xr.end, y1: yr.start + 60 };
         markers.push(legend);
+        // Error bars and the front's line are obstacles too: a label across a line is unreadable.
+        for p in &pts {
+            if let Some((lo, hi)) = p.seconds_range.filter(|(lo, hi)| lo.is_finite() && hi.is_finite() && *lo > 0.0) {
+                let (a, y) = chart.backend_coord(&(lo, p.sah_cost));
+                let (b, _) = chart.backend_coord(&(hi, p.sah_cost));
+                markers.push(labels::Rect { x0: a - 1, y0: y - 5, x1: b + 2, y1: y + 6 });
+            }
+        }
+        for w in front.windows(2) {
+            let (a, b) = (px[w[0]], px[w[1]]);
+            let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()) / 4).max(1);
+            for k in 0..=steps {
+                let x = a.0 + (b.0 - a.0) * k / steps;
+                let y = a.1 + (b.1 - a.1) * k / steps;
+                markers.push(labels::Rect { x0: x - 2, y0: y - 2, x1: x + 3, y1: y + 3 });
+            }
+        }
         let mut placer = labels::Placer::new(bounds, markers);
         let mut groups: Vec<Vec<usize>> = Vec::new();
         let mut order: Vec<usize> = (0..pts.len()).collect();
