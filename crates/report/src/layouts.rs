@@ -242,6 +242,20 @@ impl Metric {
         v.filter(|x| x.is_finite())
     }
 
+    /// Fastest and slowest run of a timed metric (an error bar); None for counts and bytes.
+    pub fn range(self, r: &ResultRow) -> Option<(f64, f64)> {
+        let runs = match self {
+            Metric::TraceSeconds => r.trace_seconds_runs.as_ref(),
+            Metric::Slowdown => r.slowdown_runs.as_ref(),
+            _ => None,
+        }?;
+        let (lo, hi) = runs
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
+        (runs.len() > 1 && lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+    }
+
     pub fn desc(self) -> &'static str {
         match self {
             Metric::TopologyBytesPerTriangle => "topology bytes / triangle",
@@ -339,6 +353,8 @@ pub struct Series {
     pub color_index: usize,
     /// (x, y, point label)
     pub points: Vec<(f64, f64, String)>,
+    /// Per point, the fastest and slowest run of a timed y (drawn as an error bar).
+    pub y_ranges: Vec<Option<(f64, f64)>>,
 }
 
 pub struct ScatterPanel {
@@ -448,7 +464,8 @@ fn range(vs: impl Iterator<Item = f64>, log_ratio: f64) -> Option<(f64, f64, boo
 fn draw_panel<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, panel: &ScatterPanel) -> Result<(), String> {
     let all = || panel.series.iter().flat_map(|s| s.points.iter());
     let xr = range(all().map(|p| p.0), 8.0);
-    let yr = range(all().map(|p| p.1), 20.0);
+    let bars = || panel.series.iter().flat_map(|s| s.y_ranges.iter().flatten().flat_map(|(a, b)| [*a, *b]));
+    let yr = range(all().map(|p| p.1).chain(bars()), 20.0);
     let (Some(xr), Some(yr)) = (xr, yr) else {
         area.draw(&Text::new(
             format!("{}: no data", panel.title),
@@ -540,6 +557,24 @@ where
             .draw_series(std::iter::once(EmptyElement::at(xy[i]) + Circle::new((0, 0), 8, BLACK.stroke_width(1))))
             .map_err(err)?;
     }
+    // Error bars: fastest to slowest run of a timed y (issue 16).
+    let mut bar_boxes = Vec::new();
+    for s in &panel.series {
+        for (p, r) in s.points.iter().zip(&s.y_ranges) {
+            let Some((lo, hi)) = r.filter(|(lo, hi)| *lo > 0.0 && hi.is_finite()) else { continue };
+            chart
+                .draw_series(std::iter::once(PathElement::new(vec![(p.0, lo), (p.0, hi)], BLACK.mix(0.45))))
+                .map_err(err)?;
+            for y in [lo, hi] {
+                chart
+                    .draw_series(std::iter::once(EmptyElement::at((p.0, y)) + PathElement::new(vec![(-4, 0), (4, 0)], BLACK.mix(0.45))))
+                    .map_err(err)?;
+            }
+            let (x, a) = chart.backend_coord(&(p.0, hi));
+            let (_, b) = chart.backend_coord(&(p.0, lo));
+            bar_boxes.push(labels::Rect { x0: x - 5, y0: a.min(b) - 1, x1: x + 6, y1: a.max(b) + 2 });
+        }
+    }
     // Front points named where the name collides with no marker or other name (issue 16); the
     // legend says which family each marker is.
     let (px, py) = chart.plotting_area().get_pixel_range();
@@ -550,6 +585,8 @@ where
             labels::Rect { x0: x - 9, y0: y - 9, x1: x + 9, y1: y + 9 }
         })
         .collect();
+    let mut markers = markers;
+    markers.extend(bar_boxes);
     let mut placer = labels::Placer::new(labels::plot_rect(px, py), markers);
     for &i in &fr {
         placer.place(area, &pts[i].2, 11.0, chart.backend_coord(&xy[i]))?;
@@ -575,6 +612,16 @@ pub fn figure(case: &Case, caption: &str, ys: &[Metric]) -> LayoutFigure {
                         .filter_map(|&i| {
                             let p = &case.points[i];
                             Some((x.of(p.row)?, y.of(p.row)?, p.label.clone()))
+                        })
+                        .collect(),
+                    y_ranges: f
+                        .members
+                        .iter()
+                        .filter_map(|&i| {
+                            let p = &case.points[i];
+                            x.of(p.row)?;
+                            y.of(p.row)?;
+                            Some(y.range(p.row))
                         })
                         .collect(),
                 })
