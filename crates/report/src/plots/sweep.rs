@@ -268,7 +268,8 @@ where
 
     // Markers first, so curves stay on top.
     let mut any = [false, false];
-    for (i, m) in panel.markers.iter().enumerate() {
+    let mut marker_labels: Vec<(f64, String)> = Vec::new();
+    for m in panel.markers.iter() {
         if !m.x.is_finite() {
             continue;
         }
@@ -288,17 +289,7 @@ where
                 any[1] = true;
             }
         }
-        // Labels stacked from the top so neighbouring markers stay readable.
-        chart
-            .draw_series(std::iter::once(
-                EmptyElement::at((m.x, yhi))
-                    + Text::new(
-                        m.label.clone(),
-                        (3, 4 + 14 * (i as i32 % 8)),
-                        ("sans-serif", 12).into_font().color(&c),
-                    ),
-            ))
-            .map_err(err)?;
+        marker_labels.push((m.x, m.label.clone()));
     }
 
     // Methods often coincide (concise bounds = scene bounds for a tiny outlier): earlier curves are
@@ -340,6 +331,13 @@ where
         }
         .map_err(err)?;
         k += 1;
+    }
+    // Marker labels near the top of their line, wherever they collide with nothing (issue 16).
+    let (px, py) = chart.plotting_area().get_pixel_range();
+    let mut placer = super::labels::Placer::new(super::labels::plot_rect(px, py.clone()), Vec::new());
+    for (x, label) in &marker_labels {
+        let (ax, _) = chart.backend_coord(&(*x, yhi));
+        placer.place(&area, label, 12.0, (ax, py.start + 10))?;
     }
     // Legend below the chart (not over the data or the marker labels): curves, then marker kinds.
     let mut entries: Vec<(String, RGBColor, u8)> = panel
