@@ -333,6 +333,23 @@ pub fn write_report_with(
     noise_section.extra = sections::tables::noise_table(rows).into_string();
     sections.push(noise_section);
 
+    // A re-run whose plots changed names (fewer scenes, small multiples) leaves the old files
+    // behind; nothing links them, so they only mislead someone browsing plots/.
+    let keep: std::collections::HashSet<String> = sections
+        .iter()
+        .flat_map(|s| s.plots.iter())
+        .chain(reference_plots.iter())
+        .flat_map(|p| [p.png.clone(), p.svg.clone()])
+        .collect();
+    if let Ok(dir) = std::fs::read_dir(&plots_dir) {
+        for e in dir.flatten() {
+            let name = format!("{PLOTS_DIR}/{}", e.file_name().to_string_lossy());
+            let ours = name.ends_with(".png") || name.ends_with(".svg");
+            if ours && !keep.contains(&name) {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
     let chips = summary_chips(rows, &problems, &cost_flags, options, &groups);
     let summary = sections::summary::render(&sections::summary::scene_lines(rows), &chips, reference.as_ref());
     let page = Page {

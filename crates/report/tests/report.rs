@@ -376,3 +376,28 @@ fn dense_plots_have_no_overlapping_labels() {
     assert_eq!(p.labels, 120, "every bar has its name and value");
     assert_eq!((p.label_overlaps, p.labels_outside), (0, 0), "bar labels");
 }
+
+/// A re-run removes plot files no section links any more (renamed or dropped plots), and keeps
+/// the ones it wrote.
+#[test]
+fn stale_plot_files_are_removed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("rep");
+    std::fs::create_dir_all(out.join("plots")).unwrap();
+    std::fs::write(out.join("plots/pareto_gone_scene.png"), b"old").unwrap();
+    std::fs::write(out.join("plots/notes.txt"), b"not ours").unwrap();
+    write_report(&out, "exp", &synthetic(None), None).unwrap();
+    assert!(!out.join("plots/pareto_gone_scene.png").exists(), "stale plot removed");
+    assert!(out.join("plots/notes.txt").exists(), "only .png/.svg are touched");
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    let linked = std::fs::read_dir(out.join("plots"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().to_string())
+        .filter(|n| n.ends_with(".png"))
+        .collect::<Vec<_>>();
+    assert!(!linked.is_empty());
+    for n in linked {
+        assert!(html.contains(&format!("plots/{n}")), "{n} is linked");
+    }
+}
