@@ -28,7 +28,7 @@ bench="$CARGO_TARGET_DIR/release/examples/build_bench"
 mode=${1:?usage: scripts/bench-builders.sh SCENE [runs=5] [threads=1] [BUILDERS] | morton [runs=5]}
 runs=${2:-5}
 
-cargo build --quiet --release -p bvhlab-build --example build_bench --manifest-path "$repo/Cargo.toml"
+cargo build --quiet --release -p bvhlab-builders --example build_bench --manifest-path "$repo/Cargo.toml"
 
 # Pull a number field out of a one-line JSON object (no jq dependency).
 field() { sed -n "s/.*\"$2\":\([-0-9.eE+]*\).*/\1/p" <<<"$1"; }

@@ -21,7 +21,7 @@ for f in "$conf" "$dragon"; do
 done
 
 cargo build --quiet --release -p bvhlab-opt --example ibo_bench --manifest-path "$repo/Cargo.toml"
-cargo build --quiet --release -p bvhlab-build --example build_bench --manifest-path "$repo/Cargo.toml"
+cargo build --quiet --release -p bvhlab-builders --example build_bench --manifest-path "$repo/Cargo.toml"
 ex="$CARGO_TARGET_DIR/release/examples"
 
 field() { sed -n "s/.*\"$2\":\([-0-9.eE+]*\).*/\1/p" <<<"$1"; }

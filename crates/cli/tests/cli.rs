@@ -451,7 +451,7 @@ fn methods_lists_builders_and_encoders() {
     }
 }
 
-/// Needs the bottom-up builders (lbvh, aac, ploc) from bvhlab-build.
+/// Needs the bottom-up builders (lbvh, aac, ploc) from bvhlab-builders.
 #[test]
 fn eval_bottom_up_with_encoder_prints_encode_fields() {
     let dir = tempfile::tempdir().unwrap();

@@ -9,7 +9,7 @@
 //! rays (as in tests/common) alternated with bvh2 in every round, the slowdown (median layout /
 //! median bvh2, by wall time and by the tracing thread's CPU time when on 1 thread), extra steps and
 //! extra triangle tests per ray against bvh2, and hits differing from bvh2 (must be 0).
-use bvhlab_build::{binned_sah, TopDownConfig};
+use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_bvh::CostParams;
 use bvhlab_geom::load_scene;
 use bvhlab_layout::{build, Layout, LayoutSpec};

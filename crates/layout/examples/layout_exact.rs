@@ -7,7 +7,7 @@
 //! random rays as in tests/common, brute force ONCE (parallel), then every layout is built,
 //! validated and traced, and its hits compared with brute force (same triangle, or t within 1e-6
 //! relative). One line per (scene, layout): differences (must be 0), validation, times.
-use bvhlab_build::{binned_sah, TopDownConfig};
+use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_geom::load_scene;
 use bvhlab_layout::{build, LayoutSpec};
 use bvhlab_trace::{brute_force, random_rays, Hit};

@@ -10,7 +10,7 @@
 //! (must be 0).
 //! `--sweep`: Kilian 4.1.4: mult_threshold 1.3..2.4 (prim_threshold 20) and prim_threshold 5..35
 //! (mult 2.0): nodes, references, octree and octree1 (16 B bfs) topology bytes, trace time.
-use bvhlab_build::{binned_sah, TopDownConfig};
+use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_geom::load_scene;
 use bvhlab_layout::octree::{self, Octree};
 use bvhlab_layout::octree1::{self, Fill, Octree1};

@@ -8,7 +8,7 @@
 //! noisy), reports medians, the costs before / after / after `collapse`, passes, stop reason, the
 //! ratio ibo / build time, and the passes needed for 90% of the final reduction. `chain=N` runs ibo
 //! N more times on its own output (different seeds) to look for lower costs.
-use bvhlab_build::TopDownConfig;
+use bvhlab_builders::TopDownConfig;
 use bvhlab_bvh::{collapse::collapse, metrics, Bvh, CostParams};
 use bvhlab_opt::ibo::{optimize, IboConfig, Measure};
 use std::time::Instant;
@@ -61,9 +61,9 @@ fn main() {
     let tcfg = TopDownConfig { leaf: 1, cost };
     let build = || -> Bvh {
         match start.as_str() {
-            "sweep" => bvhlab_build::sweep_sah::build(&boxes, &centers, &tcfg),
-            "median" => bvhlab_build::spatial_median::build(&boxes, &centers, &tcfg),
-            "binned" => bvhlab_build::binned_sah::build(&boxes, &centers, 32, &tcfg),
+            "sweep" => bvhlab_builders::sweep_sah::build(&boxes, &centers, &tcfg),
+            "median" => bvhlab_builders::spatial_median::build(&boxes, &centers, &tcfg),
+            "binned" => bvhlab_builders::binned_sah::build(&boxes, &centers, 32, &tcfg),
             s => panic!("start {s}"),
         }
     };

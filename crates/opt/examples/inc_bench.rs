@@ -11,7 +11,7 @@
 //! the build counters. `order` permutes the input before inserting (to measure how much the
 //! result depends on the file's order). Kensler: sweep-SAH leaf=1 build, then hill climbing
 //! (`runs` times, median) and/or one annealing run capped by `sa_seconds`.
-use bvhlab_build::TopDownConfig;
+use bvhlab_builders::TopDownConfig;
 use bvhlab_bvh::{collapse::collapse, metrics, Aabb, Bvh, CostParams};
 use bvhlab_opt::incremental::{build_variant, IncConfig, Variant};
 use bvhlab_opt::kensler::{optimize, optimize_scaled, KenslerConfig, TempScale};
@@ -138,7 +138,7 @@ fn main() {
     if kensler != "none" {
         let t = Instant::now();
         let sweep =
-            bvhlab_build::sweep_sah::build(&boxes, &centers, &TopDownConfig { leaf: 1, cost });
+            bvhlab_builders::sweep_sah::build(&boxes, &centers, &TopDownConfig { leaf: 1, cost });
         let tb = t.elapsed().as_secs_f64();
         let c0 = metrics(&sweep, cost).sah_cost;
         let o0 = metrics(&collapse(&sweep, cost), cost).sah_cost;

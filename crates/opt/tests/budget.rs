@@ -1,6 +1,6 @@
 //! The default pass budgets (issue 15): an optimizer whose own termination never fires still stops,
 //! deterministically, and says so (`Stop::PassBudget`); `budget = off` removes the bound.
-use bvhlab_build::TopDownConfig;
+use bvhlab_builders::TopDownConfig;
 use bvhlab_bvh::{validate, Bvh};
 use bvhlab_geom::load_scene;
 use bvhlab_opt::{ibo, kensler, Stop};
@@ -9,7 +9,7 @@ fn sah_tree(spec: &str) -> (Bvh, Vec<bvhlab_bvh::Aabb>) {
     let s = load_scene(spec).unwrap();
     let (b, c) = s.boxes_and_centers();
     let cfg = TopDownConfig { leaf: 1, ..Default::default() };
-    (bvhlab_build::spatial_median::build(&b, &c, &cfg), b)
+    (bvhlab_builders::spatial_median::build(&b, &c, &cfg), b)
 }
 
 #[test]

@@ -1,7 +1,7 @@
 //! Insertion-based optimization (Bittner 2013): optimized trees are valid, find the same closest
 //! hits as brute force, never cost more than the input with keep_best, are deterministic, fix bad
 //! (spatial-median) trees, and survive degenerate inputs.
-use bvhlab_build::TopDownConfig;
+use bvhlab_builders::TopDownConfig;
 use bvhlab_bvh::{metrics, validate, Aabb, Bvh, CostParams, Node, Vec3};
 use bvhlab_geom::{load_scene, Scene};
 use bvhlab_opt::ibo::{measure_value, optimize, reinsert_children, IboConfig, Measure};
@@ -33,9 +33,9 @@ fn build(scene: &Scene, median: bool, leaf: u32) -> Bvh {
     let (boxes, centers) = scene.boxes_and_centers();
     let cfg = TopDownConfig { leaf, cost: CostParams::default() };
     if median {
-        bvhlab_build::spatial_median::build(&boxes, &centers, &cfg)
+        bvhlab_builders::spatial_median::build(&boxes, &centers, &cfg)
     } else {
-        bvhlab_build::sweep_sah::build(&boxes, &centers, &cfg)
+        bvhlab_builders::sweep_sah::build(&boxes, &centers, &cfg)
     }
 }
 

@@ -2,7 +2,7 @@
 //! hits as brute force, hill climbing never increases the cost and ends in a local optimum,
 //! annealing is deterministic for a seed and keep_best returns the cheapest pass, degenerate
 //! inputs (1 or 2 primitives, coincident and zero-area triangles) pass through.
-use bvhlab_build::{spatial_median, sweep_sah, TopDownConfig};
+use bvhlab_builders::{spatial_median, sweep_sah, TopDownConfig};
 use bvhlab_bvh::{metrics, validate, Bvh, CostParams};
 use bvhlab_geom::load_scene;
 use bvhlab_opt::kensler::{optimize, KenslerConfig};

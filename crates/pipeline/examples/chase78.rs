@@ -60,7 +60,7 @@ fn main() {
             .encoder
             .as_ref()
             .map(|e| bvhlab_morton::encode_cells(&boxes, &centers, &e.config, e.cell_frame));
-        let codes = enc.as_ref().map(|e| bvhlab_build::SortedCodes {
+        let codes = enc.as_ref().map(|e| bvhlab_builders::SortedCodes {
             order: &e.order,
             codes: &e.codes,
             code_bits: e.code_bits,

@@ -7,8 +7,8 @@
 //! builder has goes to the builder, a name the encoder has goes to the encoder (the two schemas share
 //! no names), anything else is an input error listing both.
 use crate::error::{Error, Result};
-use bvhlab_build::aac::AacConfig;
-use bvhlab_build::{SortedCodes, TopDownConfig};
+use bvhlab_builders::aac::AacConfig;
+use bvhlab_builders::{SortedCodes, TopDownConfig};
 use bvhlab_bvh::{Aabb, Bvh, CostParams, Vec3};
 use bvhlab_morton::{AutoFor, Bits, BoundsMode, CellFrame, EncodeConfig, Scheme};
 use std::collections::BTreeMap;
@@ -731,7 +731,7 @@ impl Registry {
                     },
                 ],
                 |b, c, _, r| {
-                    use bvhlab_build::spatial_median::{build_in, Frame};
+                    use bvhlab_builders::spatial_median::{build_in, Frame};
                     let frame = r.params.get("frame").and_then(|f| Frame::parse(f)).unwrap_or_default();
                     build_in(b, c, &r.config(), frame)
                 },
@@ -740,7 +740,7 @@ impl Registry {
                 "sweep-sah",
                 "full-sweep SAH over all three axes (thesis 3.3.1)",
                 vec![LEAF],
-                |b, c, _, r| bvhlab_build::sweep_sah::build(b, c, &r.config()),
+                |b, c, _, r| bvhlab_builders::sweep_sah::build(b, c, &r.config()),
             ),
             BuilderInfo::top_down(
                 "binned-sah",
@@ -766,7 +766,7 @@ impl Registry {
                 |b, c, _, r| {
                     // Parallel over the current rayon pool (thesis 3.1.2); the same tree bytes as
                     // the sequential builder at any thread count.
-                    use bvhlab_build::binned_sah::{build_parallel, CentroidTermination};
+                    use bvhlab_builders::binned_sah::{build_parallel, CentroidTermination};
                     let stop = match r.params.get("centroid_stop").map(String::as_str) {
                         Some("any-axis") => CentroidTermination::AnyAxis,
                         _ => CentroidTermination::SplitAxis,
@@ -803,13 +803,13 @@ impl Registry {
                     LEAF,
                 ],
                 |b, c, _, r| {
-                    let cfg = bvhlab_build::bonsai::BonsaiConfig {
+                    let cfg = bvhlab_builders::bonsai::BonsaiConfig {
                         n: r.u32("n"),
                         t: r.f32("t"),
                         prune: r.flag("prune"),
                         top: r.config(),
                     };
-                    bvhlab_build::bonsai::build(b, c, &cfg)
+                    bvhlab_builders::bonsai::build(b, c, &cfg)
                 },
             )
             .with_finish(bonsai_finish)
@@ -859,7 +859,7 @@ impl Registry {
                 name: "lbvh",
                 about: "LBVH: binary radix tree over sorted codes (Karras 2012; thesis 2.3.4), then SAH compaction",
                 params: vec![],
-                run: |b, _, s, _| bvhlab_build::lbvh::build(b, sorted(s)),
+                run: |b, _, s, _| bvhlab_builders::lbvh::build(b, sorted(s)),
                 codes: Some(AutoFor::Lbvh),
                 collapse: true,
                 finish: None,
@@ -891,7 +891,7 @@ impl Registry {
                         in_label: true,
                     },
                 ],
-                run: |b, _, s, r| bvhlab_build::aac::build(b, sorted(s), &r.aac_config()),
+                run: |b, _, s, r| bvhlab_builders::aac::build(b, sorted(s), &r.aac_config()),
                 codes: Some(AutoFor::Aac),
                 collapse: true,
                 finish: Some(aac_finish),
@@ -908,7 +908,7 @@ impl Registry {
                     in_label: true,
                 }],
                 run: |b, _, s, r| {
-                    bvhlab_build::ploc::build(b, sorted(s), &bvhlab_build::ploc::PlocConfig { radius: r.u32("radius") })
+                    bvhlab_builders::ploc::build(b, sorted(s), &bvhlab_builders::ploc::PlocConfig { radius: r.u32("radius") })
                 },
                 codes: Some(AutoFor::Ploc),
                 collapse: true,

@@ -678,7 +678,7 @@ impl Runner {
             (Which::Build, Some(_)) => Some(self.encode_full(plan)?),
             _ => None,
         };
-        let codes = encoding.as_ref().map(|e| bvhlab_build::SortedCodes {
+        let codes = encoding.as_ref().map(|e| bvhlab_builders::SortedCodes {
             order: &e.encoding.order,
             codes: &e.encoding.codes,
             code_bits: e.encoding.code_bits,

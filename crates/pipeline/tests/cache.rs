@@ -1,7 +1,7 @@
 //! Cache behaviour of the runner, independent of the real loaders/builders: scenes, the builder,
 //! metrics, validation and compaction are injected test doubles, so these tests exercise only
 //! keys, counting, the store and corruption handling (encode and focus stages included).
-use bvhlab_build::SortedCodes;
+use bvhlab_builders::SortedCodes;
 use bvhlab_bvh::{Aabb, Bvh, CostParams, Metrics, Node, Vec3};
 use bvhlab_geom::{LoadError, Scene, Triangle};
 use bvhlab_layout::{bvh2::Bvh2, Layout, LayoutSpec};

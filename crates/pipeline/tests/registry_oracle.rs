@@ -3,7 +3,7 @@
 //! structural validation and finds the same closest hit as brute force on random rays (thesis 4.4).
 //! Builders that take codes run with every encoder and the encoder options (bits, bounds, grid),
 //! including the far-outlier scenes where quantization fails (Riemersma 2024).
-use bvhlab_build::SortedCodes;
+use bvhlab_builders::SortedCodes;
 use bvhlab_bvh::{collapse::collapse, validate, Bvh, CostParams};
 use bvhlab_geom::{load_scene, Scene};
 use bvhlab_pipeline::registry::Registry;

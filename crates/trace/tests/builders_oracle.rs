@@ -1,7 +1,7 @@
 //! Every builder finds the same closest hit as brute force (DEVELOPERS.md, Standards) on random
 //! rays (thesis 4.4) through random and generated scenes.
 mod common;
-use bvhlab_build::{binned_sah, spatial_median, sweep_sah, TopDownConfig};
+use bvhlab_builders::{binned_sah, spatial_median, sweep_sah, TopDownConfig};
 use bvhlab_bvh::Bvh;
 use bvhlab_geom::{Scene, Triangle};
 use bvhlab_trace::{brute_force, random_rays, trace, Hit, Ray};

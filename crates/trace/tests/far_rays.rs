@@ -2,7 +2,7 @@
 //! outlier, huge sheets at the scene edge). With the ray-triangle t evaluated in f32 it was off by
 //! ~13 ulps, more than the slab margin, so the BVH culled the box of the triangle brute force found
 //! closest (9-13 of 400 rays wrong on each scene below).
-use bvhlab_build::{binned_sah, TopDownConfig};
+use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_geom::{load_scene, Triangle, Vec3};
 use bvhlab_trace::{brute_force, trace, Ray};
 

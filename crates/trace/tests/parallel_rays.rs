@@ -1,7 +1,7 @@
 //! Regression (issue 6 proptest oracle): a ray with a zero direction component whose origin lies
 //! exactly on a box's far plane along that axis. The slab product 0 * huge = 0 ended the interval at
 //! t = 0, so the box was culled and the hit on its boundary (a vertex) was missed.
-use bvhlab_build::{binned_sah, TopDownConfig};
+use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_geom::{Triangle, Vec3};
 use bvhlab_trace::{brute_force, trace, Hit, Ray};
 

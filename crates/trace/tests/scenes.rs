@@ -1,6 +1,6 @@
 //! End to end on a generated convex scene and (when present) a real one: primary, shadow and
 //! random rays through a built BVH agree with brute force, and shadow rays show no self-shadowing.
-use bvhlab_build::{binned_sah, TopDownConfig};
+use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_geom::{load_scene, Scene};
 use bvhlab_trace::{brute_force, primary_rays, random_rays, shadow_rays, trace, Camera};
 

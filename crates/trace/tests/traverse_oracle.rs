@@ -260,16 +260,16 @@ fn identical_at_any_thread_count() {
 fn equal_t_ties_behind_flat_boxes_are_found() {
     let scene = bvhlab_geom::load_scene("gen:degenerate:n=2000").unwrap();
     let (boxes, centers) = scene.boxes_and_centers();
-    let cfg = bvhlab_build::bonsai::BonsaiConfig {
+    let cfg = bvhlab_builders::bonsai::BonsaiConfig {
         n: 16,
         t: 0.1,
         prune: true,
-        top: bvhlab_build::TopDownConfig {
+        top: bvhlab_builders::TopDownConfig {
             leaf: 1,
             ..Default::default()
         },
     };
-    let bvh = bvhlab_build::bonsai::build(&boxes, &centers, &cfg);
+    let bvh = bvhlab_builders::bonsai::build(&boxes, &centers, &cfg);
     let tris = &scene.triangles;
     let all = bounds_of(tris, &(0..tris.len() as u32).collect::<Vec<_>>());
     let core = bounds_of(tris, &(0..tris.len() as u32 - 1).collect::<Vec<_>>());

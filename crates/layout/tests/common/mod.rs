@@ -1,7 +1,7 @@
 //! Shared oracle for the layout tests: generated scenes, seeded random rays, brute-force hits, and
 //! the comparison the issue asks for (same triangle, or same t within 1e-6 relative).
 #![allow(dead_code)]
-use bvhlab_build::{binned_sah, TopDownConfig};
+use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_bvh::Bvh;
 use bvhlab_geom::{load_scene, Scene};
 use bvhlab_layout::{build, Layout, LayoutSpec};

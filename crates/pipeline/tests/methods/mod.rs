@@ -8,7 +8,7 @@
 //! Each method either yields hits (after its structure validated), or a clear error (`Refused`:
 //! a layout's `Err`), or a failure (`Invalid`, `Panic`). Callers compare hits with brute force.
 #![allow(dead_code)]
-use bvhlab_build::SortedCodes;
+use bvhlab_builders::SortedCodes;
 use bvhlab_bvh::{collapse::collapse, validate, Aabb, Bvh, CostParams, Vec3};
 use bvhlab_geom::rng::SplitMix64;
 use bvhlab_geom::{Scene, Triangle};

@@ -1,8 +1,8 @@
 //! AAC (thesis 3.2): validity, same closest hits as brute force, an exact match with a naive
 //! reference clustering (no distance matrix, everything recomputed), and thread-count determinism.
 mod common;
-use bvhlab_build::aac::{self, AacConfig};
-use bvhlab_build::{binned_sah, SortedCodes, TopDownConfig};
+use bvhlab_builders::aac::{self, AacConfig};
+use bvhlab_builders::{binned_sah, SortedCodes, TopDownConfig};
 use bvhlab_bvh::{collapse::collapse, metrics, validate, Aabb, Bvh, CostParams};
 use bvhlab_morton::{AutoFor, Bits, EncodeConfig, Encoding};
 use bvhlab_trace::{brute_force, random_rays, trace};
@@ -304,9 +304,9 @@ fn reference(boxes: &[Aabb], enc: &Encoding, cfg: &AacConfig) -> Bvh {
     });
     let mut root = stack.pop().unwrap();
     reduce(&mut root, 1);
-    bvhlab_build::bottomup::to_bvh(
+    bvhlab_builders::bottomup::to_bvh(
         boxes,
-        &bvhlab_build::bottomup::ClusterTree {
+        &bvhlab_builders::bottomup::ClusterTree {
             leaf_prims: &enc.order,
             children: &merges,
             root: root[0].id,

@@ -1,8 +1,8 @@
 //! Bonsai (thesis 3.3): structure, brute-force closest hits, determinism across thread counts,
 //! tiny and degenerate inputs, and the relations to the plain full sweep it is made of.
 mod common;
-use bvhlab_build::bonsai::{self, BonsaiConfig};
-use bvhlab_build::{sweep_sah, TopDownConfig};
+use bvhlab_builders::bonsai::{self, BonsaiConfig};
+use bvhlab_builders::{sweep_sah, TopDownConfig};
 use bvhlab_bvh::{metrics, validate, Aabb, Bvh, CostParams, Vec3};
 use bvhlab_trace::{brute_force, random_rays, trace};
 use common::*;

@@ -1,5 +1,5 @@
 //! Times the builders on one scene:
-//! `cargo run --release -p bvhlab-build --example build_bench -- SCENE [runs=5] [threads=1] [BUILDERS]`
+//! `cargo run --release -p bvhlab-builders --example build_bench -- SCENE [runs=5] [threads=1] [BUILDERS]`
 //! SCENE is a path (.obj / .obj.gz) or `gen:...`. Everything runs inside a rayon pool of `threads`
 //! threads. BUILDERS is an optional comma-separated subset of: spatial-median, binned-sah,
 //! binned-sah-any-axis, sweep-sah, binned-sah-par, lbvh, aac-hq, aac-fast, ploc-10, ploc-25,
@@ -16,11 +16,11 @@
 //! `bvh_fnv`, a hash of its canonical bytes (equal hashes = identical trees, e.g. the parallel
 //! binned SAH vs the sequential one). A builder that panics (not implemented yet) gets an `error`
 //! line and the others still run.
-use bvhlab_build::aac::AacConfig;
-use bvhlab_build::binned_sah::CentroidTermination;
-use bvhlab_build::bonsai::{self, BonsaiConfig};
-use bvhlab_build::ploc::PlocConfig;
-use bvhlab_build::{
+use bvhlab_builders::aac::AacConfig;
+use bvhlab_builders::binned_sah::CentroidTermination;
+use bvhlab_builders::bonsai::{self, BonsaiConfig};
+use bvhlab_builders::ploc::PlocConfig;
+use bvhlab_builders::{
     aac, binned_sah, lbvh, ploc, spatial_median, sweep_sah, SortedCodes, TopDownConfig,
 };
 use bvhlab_bvh::{collapse::collapse, metrics, validate, Aabb, Bvh, CostParams, Vec3};

@@ -1,6 +1,6 @@
 //! Shared helpers for the builder tests: deterministic synthetic inputs and the builders as a list.
 #![allow(dead_code)]
-use bvhlab_build::{binned_sah, spatial_median, sweep_sah, TopDownConfig};
+use bvhlab_builders::{binned_sah, spatial_median, sweep_sah, TopDownConfig};
 use bvhlab_bvh::{Aabb, Bvh, Vec3};
 
 pub type BuildFn = fn(&[Aabb], &[Vec3], &TopDownConfig) -> Bvh;

@@ -1,6 +1,6 @@
 //! Structural validity, leaf sizes, SAH ordering and determinism of the three top-down builders.
 mod common;
-use bvhlab_build::{binned_sah, spatial_median, sweep_sah, TopDownConfig};
+use bvhlab_builders::{binned_sah, spatial_median, sweep_sah, TopDownConfig};
 use bvhlab_bvh::{metrics, validate, Aabb, CostParams, Vec3};
 use common::*;
 

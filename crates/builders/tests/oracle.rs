@@ -1,6 +1,6 @@
 //! Every builder finds the same closest hit as brute force on random rays (DEVELOPERS.md).
 mod common;
-use bvhlab_build::TopDownConfig;
+use bvhlab_builders::TopDownConfig;
 use bvhlab_trace::{brute_force, random_rays, trace};
 use common::BUILDERS;
 

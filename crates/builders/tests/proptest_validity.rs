@@ -1,7 +1,7 @@
 //! Property test: on arbitrary small inputs (including duplicates, flat and point boxes) every
 //! builder yields a valid BVH, and leaf = 1 yields single-primitive leaves.
 mod common;
-use bvhlab_build::TopDownConfig;
+use bvhlab_builders::TopDownConfig;
 use bvhlab_bvh::{validate, Aabb, Vec3};
 use common::*;
 use proptest::prelude::*;
@@ -33,7 +33,7 @@ proptest! {
                 prop_assert_eq!(max_leaf_size(&bvh), 1);
             }
         }
-        let bvh = bvhlab_build::binned_sah::build(&boxes, &centers, bins, &cfg);
+        let bvh = bvhlab_builders::binned_sah::build(&boxes, &centers, bins, &cfg);
         prop_assert!(validate(&bvh, &boxes).is_ok(), "binned {} bins", bins);
     }
 }

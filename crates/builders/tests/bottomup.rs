@@ -2,9 +2,9 @@
 //! PLOC against a plain sequential reading of Meister and Bittner 2018, and bit-identical output at
 //! 1 and 2 threads.
 mod common;
-use bvhlab_build::bottomup::{to_bvh, ClusterTree};
-use bvhlab_build::ploc::PlocConfig;
-use bvhlab_build::{lbvh, ploc, SortedCodes};
+use bvhlab_builders::bottomup::{to_bvh, ClusterTree};
+use bvhlab_builders::ploc::PlocConfig;
+use bvhlab_builders::{lbvh, ploc, SortedCodes};
 use bvhlab_bvh::{validate, Aabb, Bvh, Vec3};
 use bvhlab_trace::{brute_force, random_rays, trace};
 use common::*;

@@ -1,8 +1,8 @@
 //! The parallel binned SAH (thesis 3.1.2) gives byte-identical trees to the sequential binned SAH
 //! for every parameter, speed knob and thread count, and they are valid.
 mod common;
-use bvhlab_build::binned_sah::{self, CentroidTermination, ParallelTuning};
-use bvhlab_build::TopDownConfig;
+use bvhlab_builders::binned_sah::{self, CentroidTermination, ParallelTuning};
+use bvhlab_builders::TopDownConfig;
 use bvhlab_bvh::{validate, Aabb, Vec3};
 use common::*;
 

@@ -1,12 +1,12 @@
 //! Quick quality/speed check of the Morton-family builders on one scene, for developing them:
-//! `cargo run --release -p bvhlab-build --example morton_quality -- SCENE BUILDER [ENCODER] [THREADS]`
+//! `cargo run --release -p bvhlab-builders --example morton_quality -- SCENE BUILDER [ENCODER] [THREADS]`
 //! BUILDER: lbvh | aac-hq | aac-fast | aac:DELTA:EPS | ploc:R. ENCODER: auto (default: each
 //! builder's paper default) | morton:BITS | emc64-sort | emc64-var, optionally `+concise`,
 //! `+centroids`, `+grid9` (grid bits). Prints one JSON line: encode, build and collapse times (one
 //! run each) and the SAH cost (c_T = 3, c_I = 2) before and after the SAH compaction.
-use bvhlab_build::aac::AacConfig;
-use bvhlab_build::ploc::PlocConfig;
-use bvhlab_build::{aac, lbvh, ploc, SortedCodes};
+use bvhlab_builders::aac::AacConfig;
+use bvhlab_builders::ploc::PlocConfig;
+use bvhlab_builders::{aac, lbvh, ploc, SortedCodes};
 use bvhlab_bvh::{collapse::collapse, metrics, validate, CostParams};
 use bvhlab_morton::{AutoFor, Bits, BoundsMode, EncodeConfig, Scheme};
 use std::time::Instant;
