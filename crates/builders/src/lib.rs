@@ -12,15 +12,20 @@
 //! Bonsai ([`bonsai`], thesis 3.3) is a two-level builder: spatial-median primitive sets, a
 //! full-sweep SAH mini tree per set (in parallel), optional pruning, and a full-sweep SAH top tree
 //! over the mini-tree roots weighted by their primitive counts (`sweep_sah::build_weighted`).
+//!
+//! The incremental builder ([`incremental`], Bittner, Hapala and Havran 2015; thesis 3.5.1) inserts
+//! primitives one by one into a [`bvhlab_bvh::dyntree::DynTree`] with the insertion search and
+//! reinsertion it shares with the optimizer `bvhlab_opt::ibo`.
 
 pub mod aac;
 pub mod binned_sah;
 pub mod bonsai;
 pub mod bottomup;
-pub(crate) mod boxa;
+pub mod incremental;
 pub mod lbvh;
 pub mod ploc;
 pub(crate) mod primref;
+pub(crate) mod boxa;
 pub mod spatial_median;
 pub mod sorted;
 pub mod sweep_sah;

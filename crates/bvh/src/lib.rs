@@ -2,6 +2,7 @@
 //! metrics (Frantal 2019 eq. 4 and section 4.4) and SAH compaction (Bittner 2013 section 3.6).
 
 pub mod collapse;
+pub mod dyntree;
 pub mod focus;
 pub mod metrics;
 pub mod validate;

@@ -13,7 +13,7 @@
 //! (`runs` times, median) and/or one annealing run capped by `sa_seconds`.
 use bvhlab_builders::TopDownConfig;
 use bvhlab_bvh::{collapse::collapse, metrics, Aabb, Bvh, CostParams};
-use bvhlab_opt::incremental::{build_variant, IncConfig, Variant};
+use bvhlab_builders::incremental::{build_variant, IncConfig, Variant};
 use bvhlab_opt::kensler::{optimize, optimize_scaled, KenslerConfig, TempScale};
 use bvhlab_opt::SplitMix64;
 use std::time::Instant;

@@ -1,6 +1,6 @@
 //! Insertion-based optimization (Bittner, Hapala and Havran 2013; thesis 3.4).
 use crate::search::{find_best, SearchScratch};
-use crate::tree::{DynTree, NONE};
+use bvhlab_bvh::dyntree::{DynTree, NONE};
 use crate::{Bvh, CostParams, Optimized};
 
 /// Node inefficiency measure used to pick the nodes of a pass (Bittner 2013 section 3.4, thesis
@@ -339,7 +339,7 @@ pub fn reinsert_children(tree: &mut DynTree, n: u32, scratch: &mut SearchScratch
     reinsert_logged(tree, n, scratch, &mut NoLog)
 }
 
-/// Receives every node whose [`crate::tree::DNode`] a reinsertion changes (child links or box), so
+/// Receives every node whose [`bvhlab_bvh::dyntree::DNode`] a reinsertion changes (child links or box), so
 /// the optimizer can update its copy of the best tree in O(changed) instead of copying it whole.
 trait Log {
     fn touch(&mut self, n: u32);

@@ -31,7 +31,7 @@
 //! **Trace and keep_best** as in [`crate::ibo`]: pass 0 is the input; each pass records its end
 //! time, the cost after it and the rotations applied. With `keep_best` annealing returns the tree
 //! of the cheapest pass (hill climbing's last pass is always its cheapest).
-use crate::tree::{DynTree, NONE};
+use bvhlab_bvh::dyntree::{DynTree, NONE};
 use crate::{Bvh, CostParams, Optimized, PassRecord, SplitMix64, Stop};
 use std::time::Instant;
 
@@ -266,7 +266,7 @@ pub fn optimize_scaled(bvh: &Bvh, cfg: &KenslerConfig, scale: TempScale) -> Opti
 
     // Best tree seen (annealing only: hill climbing never increases the cost).
     let snapshot = cfg.anneal && cfg.keep_best;
-    let mut best: Option<(Vec<crate::tree::DNode>, Vec<u32>, u32)> = None;
+    let mut best: Option<(Vec<bvhlab_bvh::dyntree::DNode>, Vec<u32>, u32)> = None;
     let (mut best_cost, mut best_pass) = (cost0, 0u32);
 
     let mut order = Vec::new();
@@ -369,10 +369,10 @@ mod tests {
             })
             .collect();
         // Build a DynTree by random merges, then lay it out.
-        let mut nodes: Vec<crate::tree::DNode> = boxes
+        let mut nodes: Vec<bvhlab_bvh::dyntree::DNode> = boxes
             .iter()
             .enumerate()
-            .map(|(i, b)| crate::tree::DNode::leaf(*b, i as u32, 1))
+            .map(|(i, b)| bvhlab_bvh::dyntree::DNode::leaf(*b, i as u32, 1))
             .collect();
         let mut parent = vec![NONE; n];
         let mut live: Vec<u32> = (0..n as u32).collect();
@@ -380,7 +380,7 @@ mod tests {
             let a = live.swap_remove(rng.below(live.len() as u64) as usize);
             let b = live.swap_remove(rng.below(live.len() as u64) as usize);
             let id = nodes.len() as u32;
-            nodes.push(crate::tree::DNode::inner(
+            nodes.push(bvhlab_bvh::dyntree::DNode::inner(
                 nodes[a as usize].bounds.union(&nodes[b as usize].bounds),
                 a,
                 b,

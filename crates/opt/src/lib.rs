@@ -1,21 +1,18 @@
-//! BVH optimization after construction, and the insertion-based incremental builder, one method
-//! per module, named after the papers:
+//! BVH optimization after construction, one method per module, named after the papers:
 //!
 //! - [`ibo`]: insertion-based optimization (Bittner, Hapala and Havran 2013; thesis 3.4);
 //! - [`kensler`]: tree rotations with hill climbing or simulated annealing (Kensler 2008, as Bittner
 //!   2013 uses it as a reference);
-//! - [`incremental`]: incremental construction by insertion with global updates (Bittner, Hapala and
-//!   Havran 2015; thesis 3.5.1).
+//! - [`search`]: the branch-and-bound insertion search both share with the incremental builder
+//!   (`bvhlab_builders::incremental`, Bittner, Hapala and Havran 2015; thesis 3.5.1).
 //!
-//! All work on [`tree::DynTree`] (explicit child links plus a parent array) and hand back a flat
+//! All work on [`bvhlab_bvh::dyntree::DynTree`] (explicit child links plus a parent array) and hand back a flat
 //! [`Bvh`]. They are plain sequential functions: the same input and parameters give the same tree
 //! bytes on every run and thread count (random choices come from a seeded [`SplitMix64`]), except
 //! when a `max_seconds` cap stops a run, which the result says ([`Stop::MaxSeconds`]).
 pub mod ibo;
-pub mod incremental;
 pub mod kensler;
 pub mod search;
-pub mod tree;
 
 pub use bvhlab_bvh::{Aabb, Bvh, CostParams};
 pub use bvhlab_geom::rng::SplitMix64;

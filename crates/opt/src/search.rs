@@ -1,7 +1,7 @@
 //! Branch-and-bound search for the node X that minimizes the cost of merging a subtree L with it
 //! (Bittner 2013 section 3.3, algorithm 1; thesis 3.4.2): shared by the optimizer ([`crate::ibo`])
-//! and the incremental builder ([`crate::incremental`]).
-use crate::tree::DynTree;
+//! and the incremental builder (`bvhlab_builders::incremental`).
+use bvhlab_bvh::dyntree::DynTree;
 use bvhlab_bvh::Aabb;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -47,8 +47,8 @@ pub fn find_best(tree: &DynTree, l: &Aabb, scratch: &mut SearchScratch) -> (u32,
     let SearchScratch { heap, zero, visited } = scratch;
     heap.clear();
     zero.clear();
-    if tree.root == crate::tree::NONE {
-        return (crate::tree::NONE, f64::INFINITY);
+    if tree.root == bvhlab_bvh::dyntree::NONE {
+        return (bvhlab_bvh::dyntree::NONE, f64::INFINITY);
     }
     let sa_l = l.area();
     let nodes = &tree.nodes;
@@ -110,7 +110,7 @@ pub fn find_best(tree: &DynTree, l: &Aabb, scratch: &mut SearchScratch) -> (u32,
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tree::DynTree;
+    use bvhlab_bvh::dyntree::DynTree;
     use bvhlab_bvh::{Bvh, Node, Vec3};
     use bvhlab_geom::rng::SplitMix64;
 
@@ -179,7 +179,7 @@ mod tests {
                 let (x, c) = find_best(&t, &l, &mut scratch);
                 let want = exhaustive(&t, &l);
                 assert!((c - want).abs() <= 1e-4 * want, "seed {seed}: {c} vs {want}");
-                assert!(x != crate::tree::NONE);
+                assert!(x != bvhlab_bvh::dyntree::NONE);
             }
         }
     }

@@ -6,7 +6,7 @@ use bvhlab_bvh::{metrics, validate, Aabb, Bvh, CostParams, Node, Vec3};
 use bvhlab_geom::{load_scene, Scene};
 use bvhlab_opt::ibo::{measure_value, optimize, reinsert_children, IboConfig, Measure};
 use bvhlab_opt::search::{find_best, SearchScratch};
-use bvhlab_opt::tree::DynTree;
+use bvhlab_bvh::dyntree::DynTree;
 use bvhlab_opt::Stop;
 use bvhlab_trace::{brute_force, random_rays, trace};
 

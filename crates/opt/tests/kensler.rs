@@ -259,7 +259,7 @@ fn degenerate_inputs() {
 
 /// ((((p0, p1), p2), p3) ...): a tree as deep as the primitive count.
 fn chain(boxes: &[bvhlab_bvh::Aabb]) -> Bvh {
-    use bvhlab_opt::tree::{DNode, DynTree, NONE};
+    use bvhlab_bvh::dyntree::{DNode, DynTree, NONE};
     let n = boxes.len();
     let mut nodes: Vec<DNode> = boxes
         .iter()

@@ -842,13 +842,13 @@ impl Registry {
                     },
                 ],
                 run: |b, _, _, r| {
-                    let cfg = bvhlab_opt::incremental::IncConfig {
+                    let cfg = bvhlab_builders::incremental::IncConfig {
                         batch: r.u32("batch"),
                         ofrac: r.f32("ofrac"),
                         coh: r.f32("coh"),
                         cost: r.cost,
                     };
-                    bvhlab_opt::incremental::build(b, &cfg)
+                    bvhlab_builders::incremental::build(b, &cfg)
                 },
                 codes: None,
                 collapse: false,

@@ -4,7 +4,7 @@
 //! - **Allocation** (thesis 3.5.1): all 2n - 1 nodes up front: leaf i (slots `0..n`) holds
 //!   primitive i, inner nodes take slots `n..2n-1` in the order insertions consume them.
 //! - **Insertion** in input order: each leaf (or coherent pair, below) goes where
-//!   [`find_best`] says (the branch-and-bound search of Bittner 2013 shared with [`crate::ibo`]),
+//!   [`find_best`] says (the branch-and-bound search of Bittner 2013 shared with [`bvhlab_opt::ibo`]),
 //!   linked with the node X found under a fresh inner node (X left, the inserted node right, as
 //!   in thesis 3.4.2); boxes are refitted upwards until they stop changing.
 //! - **Coherence clustering** (thesis eq. 13): two consecutive primitives x, y with
@@ -20,10 +20,10 @@
 //!   post-process optimization of the paper is the separate `ibo` stage).
 //!
 //! Deterministic: no randomness, ties broken by index.
-use crate::ibo::{measure_value, reinsert_children, Measure};
-use crate::search::{find_best, SearchScratch};
-use crate::tree::{DNode, DynTree, NONE};
-use crate::{Aabb, Bvh, CostParams};
+use bvhlab_opt::ibo::{measure_value, reinsert_children, Measure};
+use bvhlab_opt::search::{find_best, SearchScratch};
+use bvhlab_bvh::dyntree::{DNode, DynTree, NONE};
+use bvhlab_bvh::{Aabb, Bvh, CostParams};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IncConfig {

@@ -8,7 +8,7 @@
 //! boxes are the union of their children's boxes after every public operation that promises a refit.
 //! Node slots are never reused for a different role implicitly: a removed node is relinked by the
 //! caller (Bittner 2013 reuses N and P to link the reinserted nodes), so the node count is constant.
-use bvhlab_bvh::{Aabb, Bvh, CostParams, Node};
+use crate::{Aabb, Bvh, CostParams, Node};
 
 /// "No node": the root's parent.
 pub const NONE: u32 = u32::MAX;

@@ -3,7 +3,7 @@
 //! eq. 13 says, the per-batch passes lower the cost, degenerate inputs pass through.
 use bvhlab_bvh::{metrics, validate, Aabb, Bvh, CostParams, Vec3};
 use bvhlab_geom::load_scene;
-use bvhlab_opt::incremental::{build, build_with_stats, IncConfig};
+use bvhlab_builders::incremental::{build, build_with_stats, IncConfig};
 use bvhlab_trace::{brute_force, random_rays, trace};
 
 fn cost(b: &Bvh) -> f64 {
@@ -94,7 +94,7 @@ fn batch_passes_lower_the_cost() {
     // Random insertion order (a shuffled sphere) is where greedy insertion goes wrong most.
     let scene = load_scene("gen:sphere:n=3000").unwrap();
     let (boxes, _) = scene.boxes_and_centers();
-    let mut rng = bvhlab_opt::SplitMix64::new(5);
+    let mut rng = bvhlab_geom::rng::SplitMix64::new(5);
     let mut shuffled = boxes.clone();
     for i in (1..shuffled.len()).rev() {
         shuffled.swap(i, rng.below(i as u64 + 1) as usize);
