@@ -44,7 +44,7 @@ bonsai:
 outliers:
     cargo run --release -- sweep experiments/morton-outliers.toml
 
-# Kilian 2021: compressed layouts (qbvh, octree, octree1 by chunk size, frame, bits; auto) on the shared scenes,
+# Kilian 2021: compressed layouts (qbvh_chunks, octree, octree_1bit by chunk size, frame, bits; auto) on the shared scenes,
 # a hairball and a terrain; bytes per triangle vs trace time vs extra tests, findings table. Cold runtime not measured yet (no release build with the layout stage in time).
 kilian:
     cargo run --release -- sweep experiments/kilian-chunks.toml

@@ -135,8 +135,8 @@ enum Cmd {
         #[arg(long)]
         rays: Option<String>,
         /// Memory layout of the final BVH (Kilian 2021), traced by --rays with its own traversal
-        /// beside bvh2: NAME[:k=v,...], e.g. bvh2, qbvh:chunk_bytes=128,frame=parent,bits=6,
-        /// octree1:chunk_bytes=16, auto:max_slowdown=1.3 (see `bvhlab methods`).
+        /// beside bvh2: NAME[:k=v,...], e.g. bvh2, qbvh_chunks:chunk_bytes=128,frame=parent,bits=6,
+        /// octree_1bit:chunk_bytes=16, auto:max_slowdown=1.3 (see `bvhlab methods`).
         #[arg(long)]
         layout: Option<String>,
         #[arg(long)]
@@ -793,9 +793,9 @@ fn print_layout_block(o: &serde_json::Map<String, serde_json::Value>) {
 fn layout_about(name: &str) -> &'static str {
     match name {
         "bvh2" => "the flat 32-byte-node BVH (the baseline every layout is compared with)",
-        "qbvh" => "Kilian 5.2 quantized BVH: bit-field topology in fixed-size chunks, `bits` per box coordinate, frame = chunk root or parent box",
+        "qbvh_chunks" => "Kilian 5.2 quantized BVH: bit-field topology in fixed-size chunks, `bits` per box coordinate, frame = chunk root or parent box",
         "octree" => "Kilian 4.1 basic octree, 32-bit nodes, built from the triangles (ignores the BVH; references may repeat)",
-        "octree1" => "Kilian 4.2 1-bit octree in fixed-size chunks (ignores the BVH)",
+        "octree_1bit" => "Kilian 4.2 1-bit octree in fixed-size chunks (ignores the BVH)",
         _ => "",
     }
 }

@@ -440,8 +440,8 @@ fn methods_lists_builders_and_encoders() {
         "frame=[centroids]",
         "kensler-sa",
         "layouts",
-        "qbvh",
-        "octree1",
+        "qbvh_chunks",
+        "octree_1bit",
         "chunk_bytes=[64]",
         "frame=[chunk]",
         "fill=[bfs]",
@@ -643,20 +643,30 @@ fn eval_layout_fields_in_json_and_human_output() {
             && s.contains("\n  slowdown: "),
         "{s}"
     );
-    // A bad spec is an input error naming the parameter.
-    let o = bvhlab(
-        &[
-            "eval",
-            "--scene",
-            "gen:sphere:n=100",
-            "--build",
-            "binned-sah",
-            "--layout",
-            "qbvh:frame=sideways",
-            "--no-cache",
-        ],
-        dir.path(),
-    );
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("frame"));
+    // A bad spec is an input error naming the parameter; an old layout name (issue 17) is one
+    // naming the new name.
+    for (spec, needle) in [
+        ("qbvh_chunks:frame=sideways", "frame"),
+        (
+            "qbvh:frame=parent",
+            "layout `qbvh` was renamed to `qbvh_chunks` (Kilian 2021 5.2)",
+        ),
+    ] {
+        let o = bvhlab(
+            &[
+                "eval",
+                "--scene",
+                "gen:sphere:n=100",
+                "--build",
+                "binned-sah",
+                "--layout",
+                spec,
+                "--no-cache",
+            ],
+            dir.path(),
+        );
+        assert_eq!(o.status.code(), Some(2), "{spec}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(needle), "{spec}: {err}");
+    }
 }

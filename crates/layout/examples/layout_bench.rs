@@ -3,7 +3,7 @@
 //!  [--rounds 5] [--threads 1] SCENE... SPEC...`
 //!
 //! SCENE is a path (.obj / .obj.gz) or `gen:...`; SPEC is `name` or `name:k=v,k=v` (e.g.
-//! `qbvh:chunk_bytes=128,frame=parent`). Per scene: binned SAH (16 bins, leaf 2 by default), bvh2,
+//! `qbvh_chunks:chunk_bytes=128,frame=parent`). Per scene: binned SAH (16 bins, leaf 2 by default), bvh2,
 //! then per layout: topology and total bytes per triangle, topology bits per node, chunks, fill,
 //! SAH with the layout's boxes against the exact SAH, and the median trace time of `--rays` random
 //! rays (as in tests/common) alternated with bvh2 in every round, the slowdown (median layout /

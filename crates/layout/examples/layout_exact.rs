@@ -2,8 +2,8 @@
 //! `cargo run --release -p bvhlab-layout --example layout_exact -- [--leaf 2] [--rays 100000]
 //!  SCENE... SPEC...`
 //!
-//! SCENE is a path (.obj / .obj.gz) or `gen:...`; SPEC is `name` or `name:k=v,k=v` (bvh2, qbvh,
-//! octree, octree1). Per scene: binned SAH (16 bins, leaf 2 by default; the BVH layouts store it),
+//! SCENE is a path (.obj / .obj.gz) or `gen:...`; SPEC is `name` or `name:k=v,k=v` (bvh2, qbvh_chunks,
+//! octree, octree_1bit). Per scene: binned SAH (16 bins, leaf 2 by default; the BVH layouts store it),
 //! random rays as in tests/common, brute force ONCE (parallel), then every layout is built,
 //! validated and traced, and its hits compared with brute force (same triangle, or t within 1e-6
 //! relative). One line per (scene, layout): differences (must be 0), validation, times.

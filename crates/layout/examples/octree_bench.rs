@@ -5,15 +5,15 @@
 //! Default mode, per scene: octree nodes, leaves, primitive multiplication factor (references /
 //! triangles, Kilian fig. 6.5), build time; per chunk size 16/32/64/128 and fill bfs/dense: chunks,
 //! fill, topology bits per node; then the median (over `--rounds` alternated rounds) trace time of
-//! `--rays` random rays with bvh2 (binned SAH, 16 bins, leaf 2), octree, octree1 16 B bfs and dense
+//! `--rays` random rays with bvh2 (binned SAH, 16 bins, leaf 2), octree, octree_1bit 16 B bfs and dense
 //! (and `--all-chunks`: every chunk size), steps and tests per ray, hits differing from bvh2
 //! (must be 0).
 //! `--sweep`: Kilian 4.1.4: mult_threshold 1.3..2.4 (prim_threshold 20) and prim_threshold 5..35
-//! (mult 2.0): nodes, references, octree and octree1 (16 B bfs) topology bytes, trace time.
+//! (mult 2.0): nodes, references, octree and octree_1bit (16 B bfs) topology bytes, trace time.
 use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_geom::load_scene;
 use bvhlab_layout::octree::{self, Octree};
-use bvhlab_layout::octree1::{self, Fill, Octree1};
+use bvhlab_layout::octree_1bit::{self, Fill, Octree1Bit};
 use bvhlab_layout::{bvh2::Bvh2, Memory};
 use bvhlab_trace::{random_rays, Hit, Ray, TraceStats};
 use std::time::Instant;
@@ -164,12 +164,12 @@ fn main() {
         let mut ones = Vec::new();
         for cb in [16u32, 32, 64, 128] {
             for fill in [Fill::Bfs, Fill::Dense] {
-                let cfg = octree1::Config {
+                let cfg = octree_1bit::Config {
                     base: base.clone(),
                     chunk_bytes: cb,
                     fill,
                 };
-                let l = Octree1::from_octree(&o, &cfg).unwrap();
+                let l = Octree1Bit::from_octree(&o, &cfg).unwrap();
                 l.validate(tris).unwrap();
                 let mm: Memory = l.memory();
                 println!(
@@ -182,7 +182,7 @@ fn main() {
                     mm.total_bytes as f64 / tris.len() as f64
                 );
                 if cb == 16 || all_chunks {
-                    ones.push((format!("octree1-{cb}-{fill:?}"), l));
+                    ones.push((format!("octree_1bit-{cb}-{fill:?}"), l));
                 }
             }
         }
@@ -240,12 +240,12 @@ fn run_sweep(
         });
     }
     println!("\n## sweep {name}: {} tris", tris.len());
-    println!("pt  mult  nodes     refs      mult_f  octreeKB  octree1_16KB  bvh2_ms  octree_ms  octree1_ms  steps/ray  tests/ray");
+    println!("pt  mult  nodes     refs      mult_f  octreeKB  octree_1bit_16KB  bvh2_ms  octree_ms  octree_1bit_ms  steps/ray  tests/ray");
     for cfg in cfgs {
         let o = pool.install(|| Octree::build(tris, &cfg)).unwrap();
-        let l = Octree1::from_octree(
+        let l = Octree1Bit::from_octree(
             &o,
-            &octree1::Config {
+            &octree_1bit::Config {
                 base: cfg.clone(),
                 chunk_bytes: 16,
                 fill: Fill::Bfs,
@@ -255,7 +255,7 @@ fn run_sweep(
         let ts: Vec<Tracer> = vec![
             ("bvh2".into(), Box::new(|r: &[Ray]| bvh2.trace(tris, r))),
             ("octree".into(), Box::new(|r: &[Ray]| o.trace(tris, r))),
-            ("octree1".into(), Box::new(|r: &[Ray]| l.trace(tris, r))),
+            ("octree_1bit".into(), Box::new(|r: &[Ray]| l.trace(tris, r))),
         ];
         let res = race(pool, &ts, rays, rounds);
         let (m, m1) = (o.memory(), l.memory());

@@ -2,11 +2,11 @@
 //! (Kilian 2021, chapters 4 and 5):
 //!
 //! - `bvh2`: the flat 32-byte-node BVH every other stage produces (the baseline);
-//! - `qbvh`: Kilian 5.2: quantized child boxes (`bits` per coordinate), the topology as a 1-bit
+//! - `qbvh_chunks`: Kilian 5.2: quantized child boxes (`bits` per coordinate), the topology as a 1-bit
 //!   breadth-first bit field in fixed-size chunks (rank/popcount addressing), node info outside
 //!   the chunks, an exact box per chunk root; quantization `frame` = parent box or chunk-root box;
 //! - `octree`: Kilian 4.1: 32-bit nodes, implicit boxes, primitive references may repeat;
-//! - `octree1`: Kilian 4.2: the same octree as a 1-bit breadth-first bit field in chunks.
+//! - `octree_1bit`: Kilian 4.2: the same octree as a 1-bit breadth-first bit field in chunks.
 //!
 //! Every layout must find exactly the closest hit brute force finds (conservative boxes, the shared
 //! triangle test and tie rule of `bvhlab_trace`). Algorithms here are plain functions over slices:
@@ -14,8 +14,8 @@
 pub mod bvh2;
 pub mod chunks;
 pub mod octree;
-pub mod octree1;
-pub mod qbvh;
+pub mod octree_1bit;
+pub mod qbvh_chunks;
 
 use bvhlab_bvh::{Bvh, CostParams};
 use bvhlab_geom::Triangle;
@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// Layout names accepted by `build` (the pipeline adds `auto`, a search over these).
-pub const LAYOUTS: [&str; 4] = ["bvh2", "qbvh", "octree", "octree1"];
+pub const LAYOUTS: [&str; 4] = ["bvh2", "qbvh_chunks", "octree", "octree_1bit"];
 
 /// What a layout costs in memory. "Topology" is Kilian's *size of topology* (6.2): everything
 /// traversal reads at every step (nodes; chunks + node info), not the leaf arrays
@@ -33,7 +33,7 @@ pub const LAYOUTS: [&str; 4] = ["bvh2", "qbvh", "octree", "octree1"];
 pub struct Memory {
     pub topology_bytes: u64,
     pub total_bytes: u64,
-    /// Nodes of the topology (bvh2/qbvh: inner + leaves; octrees: all octree nodes including the root).
+    /// Nodes of the topology (bvh2/qbvh_chunks: inner + leaves; octrees: all octree nodes including the root).
     pub nodes: u64,
     /// Fixed-size chunks (0 for unchunked layouts).
     pub chunks: u64,
@@ -62,13 +62,28 @@ pub struct LayoutSpec {
     pub params: BTreeMap<String, String>,
 }
 
+/// Layouts renamed in issue 17 (old name, new name, source): `qbvh` left the name free for a 4-wide
+/// BVH (quad-BVH). An old name is an error that names the new one ([`renamed`]).
+pub const RENAMED: [(&str, &str, &str); 2] = [
+    ("qbvh", "qbvh_chunks", "Kilian 2021 5.2"),
+    ("octree1", "octree_1bit", "Kilian 2021 4.2"),
+];
+
+/// The error for an old layout name (`RENAMED`), `None` for any other name.
+pub fn renamed(name: &str) -> Option<String> {
+    RENAMED
+        .iter()
+        .find(|(old, _, _)| *old == name)
+        .map(|(old, new, source)| format!("layout `{old}` was renamed to `{new}` ({source})"))
+}
+
 /// (name, default) of each layout's parameters.
 pub fn param_schema(name: &str) -> Option<&'static [(&'static str, &'static str)]> {
     Some(match name {
         "bvh2" => &[],
-        "qbvh" => qbvh::PARAMS,
+        "qbvh_chunks" => qbvh_chunks::PARAMS,
         "octree" => octree::PARAMS,
-        "octree1" => octree1::PARAMS,
+        "octree_1bit" => octree_1bit::PARAMS,
         _ => return None,
     })
 }
@@ -77,6 +92,9 @@ impl LayoutSpec {
     /// Validates `name` and `params` (unknown names and bad values are errors naming the valid
     /// choices) and fills in defaults.
     pub fn parse(name: &str, given: &BTreeMap<String, String>) -> Result<LayoutSpec, String> {
+        if let Some(e) = renamed(name) {
+            return Err(e);
+        }
         let schema = param_schema(name).ok_or_else(|| {
             format!(
                 "unknown layout `{name}`; valid: {}, auto",
@@ -106,9 +124,9 @@ impl LayoutSpec {
             params,
         };
         match name {
-            "qbvh" => qbvh::Config::from_spec(&spec).map(|_| ())?,
+            "qbvh_chunks" => qbvh_chunks::Config::from_spec(&spec).map(|_| ())?,
             "octree" => octree::Config::from_spec(&spec).map(|_| ())?,
-            "octree1" => octree1::Config::from_spec(&spec).map(|_| ())?,
+            "octree_1bit" => octree_1bit::Config::from_spec(&spec).map(|_| ())?,
             _ => {}
         }
         Ok(spec)
@@ -138,9 +156,9 @@ impl LayoutSpec {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Layout {
     Bvh2(bvh2::Bvh2),
-    Qbvh(qbvh::Qbvh),
+    QbvhChunks(qbvh_chunks::QbvhChunks),
     Octree(octree::Octree),
-    Octree1(octree1::Octree1),
+    Octree1Bit(octree_1bit::Octree1Bit),
 }
 
 /// Start of the error of a build given up at its deadline (`build_until`).
@@ -154,7 +172,7 @@ pub fn build(spec: &LayoutSpec, bvh: &Bvh, tris: &[Triangle]) -> Result<Layout, 
 
 /// `build`, given up with an error starting with [`DEADLINE_REACHED`] once `deadline` has passed.
 /// Only octree builds check it (between levels): their time is not bounded by the input size;
-/// bvh2 and qbvh builds are one linear pass over the BVH.
+/// bvh2 and qbvh_chunks builds are one linear pass over the BVH.
 pub fn build_until(
     spec: &LayoutSpec,
     bvh: &Bvh,
@@ -163,15 +181,15 @@ pub fn build_until(
 ) -> Result<Layout, String> {
     Ok(match spec.name.as_str() {
         "bvh2" => Layout::Bvh2(bvh2::Bvh2::build(bvh)),
-        "qbvh" => Layout::Qbvh(qbvh::Qbvh::build(bvh, &qbvh::Config::from_spec(spec)?)?),
+        "qbvh_chunks" => Layout::QbvhChunks(qbvh_chunks::QbvhChunks::build(bvh, &qbvh_chunks::Config::from_spec(spec)?)?),
         "octree" => Layout::Octree(octree::Octree::build_until(
             tris,
             &octree::Config::from_spec(spec)?,
             deadline,
         )?),
-        "octree1" => Layout::Octree1(octree1::Octree1::build_until(
+        "octree_1bit" => Layout::Octree1Bit(octree_1bit::Octree1Bit::build_until(
             tris,
-            &octree1::Config::from_spec(spec)?,
+            &octree_1bit::Config::from_spec(spec)?,
             deadline,
         )?),
         other => {
@@ -186,25 +204,25 @@ pub fn build_until(
 /// Whether a layout's structure depends on the input BVH (octrees are built from the scene alone,
 /// so the pipeline keys them by the scene only).
 pub fn uses_bvh(name: &str) -> bool {
-    matches!(name, "bvh2" | "qbvh")
+    matches!(name, "bvh2" | "qbvh_chunks")
 }
 
 impl Layout {
     pub fn name(&self) -> &'static str {
         match self {
             Layout::Bvh2(_) => "bvh2",
-            Layout::Qbvh(_) => "qbvh",
+            Layout::QbvhChunks(_) => "qbvh_chunks",
             Layout::Octree(_) => "octree",
-            Layout::Octree1(_) => "octree1",
+            Layout::Octree1Bit(_) => "octree_1bit",
         }
     }
 
     pub fn memory(&self) -> Memory {
         match self {
             Layout::Bvh2(l) => l.memory(),
-            Layout::Qbvh(l) => l.memory(),
+            Layout::QbvhChunks(l) => l.memory(),
             Layout::Octree(l) => l.memory(),
-            Layout::Octree1(l) => l.memory(),
+            Layout::Octree1Bit(l) => l.memory(),
         }
     }
 
@@ -213,20 +231,20 @@ impl Layout {
     pub fn trace(&self, tris: &[Triangle], rays: &[Ray]) -> TraceStats {
         match self {
             Layout::Bvh2(l) => l.trace(tris, rays),
-            Layout::Qbvh(l) => l.trace(tris, rays),
+            Layout::QbvhChunks(l) => l.trace(tris, rays),
             Layout::Octree(l) => l.trace(tris, rays),
-            Layout::Octree1(l) => l.trace(tris, rays),
+            Layout::Octree1Bit(l) => l.trace(tris, rays),
         }
     }
 
-    /// SAH cost (thesis eq. 4) of the boxes traversal actually tests: quantized boxes for qbvh,
+    /// SAH cost (thesis eq. 4) of the boxes traversal actually tests: quantized boxes for qbvh_chunks,
     /// implicit octant boxes for octrees (leaf cost counts repeated references).
     pub fn sah_cost(&self, cost: CostParams) -> f64 {
         match self {
             Layout::Bvh2(l) => l.sah_cost(cost),
-            Layout::Qbvh(l) => l.sah_cost(cost),
+            Layout::QbvhChunks(l) => l.sah_cost(cost),
             Layout::Octree(l) => l.sah_cost(cost),
-            Layout::Octree1(l) => l.sah_cost(cost),
+            Layout::Octree1Bit(l) => l.sah_cost(cost),
         }
     }
 
@@ -236,20 +254,20 @@ impl Layout {
     pub fn validate(&self, tris: &[Triangle]) -> Result<(), String> {
         match self {
             Layout::Bvh2(l) => l.validate(tris),
-            Layout::Qbvh(l) => l.validate(tris),
+            Layout::QbvhChunks(l) => l.validate(tris),
             Layout::Octree(l) => l.validate(tris),
-            Layout::Octree1(l) => l.validate(tris),
+            Layout::Octree1Bit(l) => l.validate(tris),
         }
     }
 
     /// The uncompressed layout with the same topology, against which extra box hits and extra
-    /// triangle tests are counted: qbvh -> bvh2 of the same BVH, octree1 -> octree with the same
+    /// triangle tests are counted: qbvh_chunks -> bvh2 of the same BVH, octree_1bit -> octree with the same
     /// construction parameters. `None` when `self` is already uncompressed (bvh2, octree).
     pub fn uncompressed(&self, bvh: &Bvh, tris: &[Triangle]) -> Option<Layout> {
         match self {
             Layout::Bvh2(_) | Layout::Octree(_) => None,
-            Layout::Qbvh(_) => Some(Layout::Bvh2(bvh2::Bvh2::build(bvh))),
-            Layout::Octree1(l) => l.uncompressed(tris).map(Layout::Octree),
+            Layout::QbvhChunks(_) => Some(Layout::Bvh2(bvh2::Bvh2::build(bvh))),
+            Layout::Octree1Bit(l) => l.uncompressed(tris).map(Layout::Octree),
         }
     }
 }

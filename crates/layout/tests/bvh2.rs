@@ -30,6 +30,6 @@ fn specs_are_validated() {
     assert!(LayoutSpec::parse("bvh2", &raw(&[("bits", "8")]))
         .unwrap_err()
         .contains("no parameter `bits`"));
-    let q = LayoutSpec::parse("qbvh", &raw(&[])).unwrap();
+    let q = LayoutSpec::parse("qbvh_chunks", &raw(&[])).unwrap();
     assert_eq!(q.params_string(), "bits=8,chunk_bytes=64,frame=chunk");
 }

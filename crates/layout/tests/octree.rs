@@ -5,7 +5,7 @@ mod common;
 use bvhlab_bvh::CostParams;
 use bvhlab_geom::{Triangle, Vec3};
 use bvhlab_layout::octree::{self, centre, child_box, Octree};
-use bvhlab_layout::octree1::{self, Fill, Octree1};
+use bvhlab_layout::octree_1bit::{self, Fill, Octree1Bit};
 use bvhlab_layout::{build, Layout};
 use bvhlab_trace::{brute_force, Ray};
 use common::*;
@@ -23,7 +23,7 @@ fn memory_formulas(l: &Layout) {
             assert_eq!(m.topology_bits_per_node(), 32.0);
             assert_eq!((m.chunks, m.chunk_fill), (0, 0.0));
         }
-        Layout::Octree1(o) => {
+        Layout::Octree1Bit(o) => {
             let b = o.config.chunk_bytes as u64;
             assert_eq!(m.topology_bytes, m.chunks * b);
             assert_eq!(o.words.len() as u64 * 8, m.topology_bytes);
@@ -56,7 +56,7 @@ fn memory_formulas(l: &Layout) {
     }
 }
 
-/// Builds octree1 and checks it against brute force, its byte formulas, and (same topology) its
+/// Builds octree_1bit and checks it against brute force, its byte formulas, and (same topology) its
 /// uncompressed octree: equal memory.nodes/prim_refs and identical per-ray steps and tests.
 fn check_pair(c: &Case, kv: &[(&str, &str)], chunk: &str, fill: &str) {
     let o = check(c, &spec("octree", kv));
@@ -64,13 +64,13 @@ fn check_pair(c: &Case, kv: &[(&str, &str)], chunk: &str, fill: &str) {
     let mut kv1 = kv.to_vec();
     kv1.push(("chunk_bytes", chunk));
     kv1.push(("fill", fill));
-    let l = check(c, &spec("octree1", &kv1));
+    let l = check(c, &spec("octree_1bit", &kv1));
     memory_formulas(&l);
     if chunk == "16" {
         // (Rebuilds the octree: once per scene and parameter set is enough.)
         let u = l
             .uncompressed(&c.bvh, &c.scene.triangles)
-            .expect("octree1 has an uncompressed octree");
+            .expect("octree_1bit has an uncompressed octree");
         assert_eq!(
             u, o,
             "uncompressed() is the octree with the same parameters"
@@ -195,19 +195,19 @@ fn check_tris(name: &str, tris: &[Triangle], rays: &[Ray]) {
     }
     for fill in [Fill::Bfs, Fill::Dense] {
         for chunk_bytes in [16, 32, 128] {
-            let c1 = octree1::Config {
+            let c1 = octree_1bit::Config {
                 base: cfg.clone(),
                 chunk_bytes,
                 fill,
             };
-            let l = Octree1::build(tris, &c1).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let l = Octree1Bit::build(tris, &c1).unwrap_or_else(|e| panic!("{name}: {e}"));
             l.validate(tris)
                 .unwrap_or_else(|e| panic!("{name} {fill:?}: {e}"));
             let g1 = l.trace(tris, rays);
             assert_eq!(g1.steps, got.steps, "{name} {fill:?} {chunk_bytes}");
             assert_eq!(g1.intersections, got.intersections);
             for (i, (g, w)) in g1.hits.iter().zip(&want).enumerate() {
-                assert!(same_hit(g, w), "{name} octree1 ray {i}: {g:?} vs {w:?}");
+                assert!(same_hit(g, w), "{name} octree_1bit ray {i}: {g:?} vs {w:?}");
             }
         }
     }
@@ -364,14 +364,14 @@ fn chunk_byte_formulas_and_kilian_slots() {
     for (b, slots) in [(16u64, 64u64), (32, 192), (64, 448), (128, 960)] {
         let l = build(
             &spec(
-                "octree1",
+                "octree_1bit",
                 &[("chunk_bytes", &b.to_string()), ("prim_threshold", "4")],
             ),
             &c.bvh,
             &c.scene.triangles,
         )
         .unwrap();
-        let Layout::Octree1(o) = &l else {
+        let Layout::Octree1Bit(o) = &l else {
             unreachable!()
         };
         let m = l.memory();
@@ -382,7 +382,7 @@ fn chunk_byte_formulas_and_kilian_slots() {
         assert_eq!(o.words.len() as u64, m.chunks * b / 8);
         let d = build(
             &spec(
-                "octree1",
+                "octree_1bit",
                 &[
                     ("chunk_bytes", &b.to_string()),
                     ("prim_threshold", "4"),
@@ -407,8 +407,8 @@ fn deterministic_bytes_and_bad_parameters() {
     let c = case("gen:hairball:n=500", 2, 10, 5);
     for (name, kv) in [
         ("octree", vec![]),
-        ("octree1", vec![("fill", "dense")]),
-        ("octree1", vec![("chunk_bytes", "64")]),
+        ("octree_1bit", vec![("fill", "dense")]),
+        ("octree_1bit", vec![("chunk_bytes", "64")]),
     ] {
         let a = build(&spec(name, &kv), &c.bvh, &c.scene.triangles).unwrap();
         let b = rayon::ThreadPoolBuilder::new()
@@ -433,9 +433,9 @@ fn deterministic_bytes_and_bad_parameters() {
         &[("overlap", "exact")],
         &[("prim_threshold", "-1")],
     ] {
-        assert!(LayoutSpec::parse("octree1", &raw(kv)).is_err(), "{kv:?}");
+        assert!(LayoutSpec::parse("octree_1bit", &raw(kv)).is_err(), "{kv:?}");
     }
-    let d = LayoutSpec::parse("octree1", &raw(&[])).unwrap();
+    let d = LayoutSpec::parse("octree_1bit", &raw(&[])).unwrap();
     assert_eq!(
         d.params_string(),
         "chunk_bytes=16,fill=bfs,max_depth=24,mult_threshold=2.0,overlap=sat,prim_threshold=20"
@@ -471,7 +471,7 @@ fn octree_builds_stop_at_their_deadline() {
     use bvhlab_layout::{build_until, DEADLINE_REACHED};
     let c = case("gen:hairball:n=500", 2, 10, 5);
     let past = std::time::Instant::now();
-    for (name, kv) in [("octree", vec![]), ("octree1", vec![("fill", "dense")])] {
+    for (name, kv) in [("octree", vec![]), ("octree_1bit", vec![("fill", "dense")])] {
         let e = build_until(&spec(name, &kv), &c.bvh, &c.scene.triangles, Some(past)).unwrap_err();
         assert!(e.starts_with(DEADLINE_REACHED), "{name}: {e}");
         let far = past + std::time::Duration::from_secs(3600);
@@ -482,5 +482,5 @@ fn octree_builds_stop_at_their_deadline() {
         );
     }
     // BVH layouts are one linear pass: no deadline check.
-    assert!(build_until(&spec("qbvh", &[]), &c.bvh, &c.scene.triangles, Some(past)).is_ok());
+    assert!(build_until(&spec("qbvh_chunks", &[]), &c.bvh, &c.scene.triangles, Some(past)).is_ok());
 }

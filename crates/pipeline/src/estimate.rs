@@ -522,10 +522,10 @@ mod tests {
 /// log2(triangles). In ns per triangle per repeat: load 164-169 (generated scenes; files parse
 /// slower, taken as 3x), encode morton 64 / emc64 92, build lbvh 241, spatial-median 215, binned-sah
 /// 318, bonsai 245 (2 threads), ploc 347, aac 578, sweep-sah 614, incremental 533 (2 threads),
-/// compact 115, optimize ibo 2442 (232-14934: passes vary), kensler 597, layout bvh2 60, qbvh 359,
-/// octree1 562, auto 3104 (once, not per repeat: x5 there). Measure, ns per ray per log2(triangles)
+/// compact 115, optimize ibo 2442 (232-14934: passes vary), kensler 597, layout bvh2 60, qbvh_chunks 359,
+/// octree_1bit 562, auto 3104 (once, not per repeat: x5 there). Measure, ns per ray per log2(triangles)
 /// per repeat: random 48.8 (1 thread; 13.0 on 2 threads), primary about a third of random; with a
-/// layout (traced beside bvh2, 2 threads): bvh2 25, qbvh 43, octree/octree1 58, auto 35 for random
+/// layout (traced beside bvh2, 2 threads): bvh2 25, qbvh_chunks 43, octree/octree_1bit 58, auto 35 for random
 /// rays, taken as multiples of the plain measure. The spread within a method is 2-5x, and 50x for
 /// the hairball's rays (its boxes overlap), so a node's estimate is good to a factor of a few; the
 /// shards balance many nodes of similar kind, whose errors are alike, so LPT still spreads them
@@ -585,7 +585,7 @@ pub fn node_seconds(
         "layout" => match p("layout") {
             "auto" => 15_000e-9 * t,
             "bvh2" => ns_per_tri(60.0),
-            "qbvh" => ns_per_tri(360.0),
+            "qbvh_chunks" => ns_per_tri(360.0),
             _ => ns_per_tri(600.0),
         },
         "measure" => {
@@ -594,7 +594,7 @@ pub fn node_seconds(
             let per_ray = match layout {
                 None => base,
                 Some("bvh2") => 2.0 * base,
-                Some("qbvh") => 3.3 * base,
+                Some("qbvh_chunks") => 3.3 * base,
                 Some("auto") => 2.7 * base,
                 Some(_) => 4.5 * base,
             };

@@ -87,7 +87,7 @@ pub struct ChainPoint {
     pub optimize: Option<String>,
     pub compact: String,
     pub params: BTreeMap<String, String>,
-    /// Layout spec (`qbvh:chunk_bytes=128`, `auto:max_slowdown=1.3`); None: no layout stage.
+    /// Layout spec (`qbvh_chunks:chunk_bytes=128`, `auto:max_slowdown=1.3`); None: no layout stage.
     pub layout: Option<String>,
 }
 
@@ -333,7 +333,7 @@ impl Experiment {
                 let encode = c.remove("encode");
                 // `optimize = ["none", "ibo"]` compares with and without an optimize stage.
                 let optimize = c.remove("optimize").filter(|o| o != "none");
-                // `layout = ["none", "qbvh"]` compares with and without a layout stage.
+                // `layout = ["none", "qbvh_chunks"]` compares with and without a layout stage.
                 let layout = c.remove("layout").filter(|l| l != "none");
                 if let Some(l) = &layout {
                     parse_layout(l).map_err(|e| err(e.message().to_string()))?;
@@ -675,7 +675,7 @@ max = [16.0, 4.0, 16.0]
     fn layouts_are_an_axis() {
         let head = "name = \"x\"\nscenes = [\"gen:sphere\"]\n[[chain]]\nbuild = \"binned-sah\"\n";
         let e = parse(&format!(
-            "{head}layout = [\"none\", \"bvh2\", \"qbvh:chunk_bytes=128,frame=parent\"]\nbins = 8\n"
+            "{head}layout = [\"none\", \"bvh2\", \"qbvh_chunks:chunk_bytes=128,frame=parent\"]\nbins = 8\n"
         ))
         .unwrap();
         let layouts: Vec<Option<&str>> = e.points.iter().map(|p| p.layout.as_deref()).collect();
@@ -684,19 +684,28 @@ max = [16.0, 4.0, 16.0]
             [
                 None,
                 Some("bvh2"),
-                Some("qbvh:chunk_bytes=128,frame=parent")
+                Some("qbvh_chunks:chunk_bytes=128,frame=parent")
             ]
         );
         assert!(e.points.iter().all(|p| !p.params.contains_key("layout")));
         assert_eq!(
             e.chains()[2].layout.as_deref(),
-            Some("qbvh:chunk_bytes=128,frame=parent")
+            Some("qbvh_chunks:chunk_bytes=128,frame=parent")
         );
         for (bad, needle) in [
             ("layout = \"zip\"\n", "zip"),
-            ("layout = \"qbvh:wat=1\"\n", "wat"),
-            ("layout = \"qbvh:frame=sideways\"\n", "frame"),
+            ("layout = \"qbvh_chunks:wat=1\"\n", "wat"),
+            ("layout = \"qbvh_chunks:frame=sideways\"\n", "frame"),
             ("layout = \"auto:max_slowdown=-1\"\n", "max_slowdown"),
+            // Old names (issue 17): the error names the new one.
+            (
+                "layout = [\"bvh2\", \"qbvh:frame=parent\"]\n",
+                "layout `qbvh` was renamed to `qbvh_chunks` (Kilian 2021 5.2)",
+            ),
+            (
+                "layout = \"octree1\"\n",
+                "layout `octree1` was renamed to `octree_1bit` (Kilian 2021 4.2)",
+            ),
         ] {
             let e = parse(&format!("{head}{bad}")).unwrap_err();
             assert_eq!(e.exit_code(), 2, "{bad}");

@@ -151,7 +151,7 @@ pub struct ResultRow {
     /// Spread of rays / seconds over the trace runs (derived from `trace_seconds_runs`).
     #[serde(default)]
     pub mrays_per_s_spread: Option<f64>,
-    /// Layout stage (Kilian 2021): `bvh2`, `qbvh`, `octree`, `octree1`; absent without a layout
+    /// Layout stage (Kilian 2021): `bvh2`, `qbvh_chunks`, `octree`, `octree_1bit`; absent without a layout
     /// stage (the measure stage then traces the flat BVH, i.e. bvh2). With `layout=auto` this is the
     /// layout the search picked and `layout_choice` says why.
     pub layout: Option<String>,
@@ -184,10 +184,10 @@ pub struct ResultRow {
     #[serde(default)]
     pub layout_seconds_runs: Option<Vec<f64>>,
     /// SAH cost (thesis eq. 4) evaluated with the boxes the layout's traversal tests (quantized
-    /// boxes for qbvh, implicit octant boxes for octrees).
+    /// boxes for qbvh_chunks, implicit octant boxes for octrees).
     pub layout_sah_cost: Option<f64>,
     /// Per ray, extra nodes entered and extra triangle tests against the uncompressed structure of
-    /// the same topology (qbvh against bvh2 of the same BVH, octree1 against octree; 0 for those).
+    /// the same topology (qbvh_chunks against bvh2 of the same BVH, octree_1bit against octree; 0 for those).
     pub extra_box_hits_per_ray: Option<f64>,
     pub extra_tests_per_ray: Option<f64>,
     /// Median seconds of the same rays through bvh2 of the same BVH, timed in the same run

@@ -41,7 +41,9 @@ pub const OPTIMIZE_VERSION: u32 = 2;
 ///    only noise (a bvh2-vs-bvh2 slowdown of 5.1 was seen on a loaded machine).
 pub const MEASURE_VERSION: u32 = 6;
 pub const FOCUS_VERSION: u32 = 1;
-pub const LAYOUT_VERSION: u32 = 2;
+/// 3: layout names `qbvh` -> `qbvh_chunks`, `octree1` -> `octree_1bit` (issue 17); an `auto`
+///    artifact records the chosen candidate by name. Layout contents are unchanged.
+pub const LAYOUT_VERSION: u32 = 3;
 
 /// Stage implementation versions; injectable so tests can simulate a version bump.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -255,7 +257,7 @@ pub struct ChainSpec {
     pub repeat: u32,
     /// Focus box: triangles whose centroid lies inside (bounds included) form the focus object.
     pub focus: Option<Aabb>,
-    /// Layout spec `NAME[:k=v,...]` (`bvh2`, `qbvh`, `octree`, `octree1`, `auto`); None: no layout
+    /// Layout spec `NAME[:k=v,...]` (`bvh2`, `qbvh_chunks`, `octree`, `octree_1bit`, `auto`); None: no layout
     /// stage, measure traces the flat BVH.
     pub layout: Option<String>,
 }
@@ -481,8 +483,8 @@ pub const AUTO_SEED: u64 = 0xa070_1a70;
 /// Timed runs per candidate (each alternated with bvh2); the median is compared.
 pub const AUTO_RUNS: usize = 3;
 
-/// The `auto` search space, kept small (every candidate is built and timed per scene): bvh2; qbvh
-/// with chunk_bytes 64/128 x frame chunk/parent x bits 4/6/8; octree1 in 16-byte chunks filled
+/// The `auto` search space, kept small (every candidate is built and timed per scene): bvh2; qbvh_chunks
+/// with chunk_bytes 64/128 x frame chunk/parent x bits 4/6/8; octree_1bit in 16-byte chunks filled
 /// breadth-first or densely.
 pub fn auto_candidates() -> Vec<String> {
     let mut c = vec!["bvh2".to_string()];
@@ -490,13 +492,13 @@ pub fn auto_candidates() -> Vec<String> {
         for frame in ["chunk", "parent"] {
             for bits in [4, 6, 8] {
                 c.push(format!(
-                    "qbvh:bits={bits},chunk_bytes={chunk},frame={frame}"
+                    "qbvh_chunks:bits={bits},chunk_bytes={chunk},frame={frame}"
                 ));
             }
         }
     }
     for fill in ["bfs", "dense"] {
-        c.push(format!("octree1:chunk_bytes=16,fill={fill}"));
+        c.push(format!("octree_1bit:chunk_bytes=16,fill={fill}"));
     }
     c
 }
@@ -506,7 +508,7 @@ fn split_kv(spec: &str, body: &str) -> Result<BTreeMap<String, String>> {
     for kv in body.split(',') {
         let (k, v) = kv.split_once('=').ok_or_else(|| {
             Error::input(format!(
-                "bad layout `{spec}`: `{kv}` is not KEY=VALUE (expected NAME[:k=v,k=v], e.g. qbvh:chunk_bytes=128,frame=parent)"
+                "bad layout `{spec}`: `{kv}` is not KEY=VALUE (expected NAME[:k=v,k=v], e.g. qbvh_chunks:chunk_bytes=128,frame=parent)"
             ))
         })?;
         let (k, v) = (k.trim(), v.trim());
@@ -524,8 +526,8 @@ fn split_kv(spec: &str, body: &str) -> Result<BTreeMap<String, String>> {
     Ok(out)
 }
 
-/// Parses `NAME[:k=v,k=v]` (`bvh2`, `qbvh:chunk_bytes=128,frame=parent,bits=6`,
-/// `octree1:chunk_bytes=16`, `auto:max_slowdown=1.3,rays=20000`). Unknown names, parameters and bad
+/// Parses `NAME[:k=v,k=v]` (`bvh2`, `qbvh_chunks:chunk_bytes=128,frame=parent,bits=6`,
+/// `octree_1bit:chunk_bytes=16`, `auto:max_slowdown=1.3,rays=20000`). Unknown names, parameters and bad
 /// values are input errors; defaults are filled in.
 pub fn parse_layout(spec: &str) -> Result<LayoutRequest> {
     let spec_t = spec.trim();
@@ -743,17 +745,17 @@ mod tests {
         };
         assert_eq!((l.name.as_str(), l.params.len()), ("bvh2", 0));
         let LayoutRequest::Fixed(q) =
-            parse_layout(" qbvh: frame=parent , chunk_bytes=128").unwrap()
+            parse_layout(" qbvh_chunks: frame=parent , chunk_bytes=128").unwrap()
         else {
             panic!()
         };
         assert_eq!(q.params["frame"], "parent");
         assert_eq!(q.params["chunk_bytes"], "128");
         // Defaults filled in: explicit defaults and omitted ones give the same canonical params.
-        let LayoutRequest::Fixed(d) = parse_layout("qbvh").unwrap() else {
+        let LayoutRequest::Fixed(d) = parse_layout("qbvh_chunks").unwrap() else {
             panic!()
         };
-        let all = format!("qbvh:{}", d.params_string());
+        let all = format!("qbvh_chunks:{}", d.params_string());
         assert_eq!(parse_layout(&all).unwrap(), LayoutRequest::Fixed(d));
         assert_eq!(
             parse_layout("auto").unwrap(),
@@ -773,9 +775,13 @@ mod tests {
         );
         for (bad, needle) in [
             ("zip", "unknown layout"),
-            ("qbvh:chunk_bytes", "KEY=VALUE"),
-            ("qbvh:chunk_bytes=64,chunk_bytes=128", "twice"),
-            ("qbvh:nope=1", "nope"),
+            ("qbvh_chunks:chunk_bytes", "KEY=VALUE"),
+            ("qbvh_chunks:chunk_bytes=64,chunk_bytes=128", "twice"),
+            ("qbvh_chunks:nope=1", "nope"),
+            // Old names (issue 17) name the new one, with or without parameters.
+            ("qbvh", "layout `qbvh` was renamed to `qbvh_chunks` (Kilian 2021 5.2)"),
+            ("qbvh:bits=6", "renamed to `qbvh_chunks`"),
+            ("octree1:fill=dense", "layout `octree1` was renamed to `octree_1bit` (Kilian 2021 4.2)"),
             ("bvh2:bits=4", "bits"),
             ("auto:max_slowdown=0", "max_slowdown"),
             ("auto:max_slowdown=nan", "max_slowdown"),

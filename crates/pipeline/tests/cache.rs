@@ -885,14 +885,14 @@ fn layout_keys_follow_name_params_and_inputs() {
     let dir = tempfile::tempdir().unwrap();
     let ch = vec![
         layout_chain("4", "bvh2", false),
-        layout_chain("4", "qbvh", false),
-        layout_chain("4", "qbvh:chunk_bytes=64", false), // the default, spelled out
-        layout_chain("4", "qbvh:chunk_bytes=128", false),
-        layout_chain("4", "qbvh:frame=parent", false),
-        layout_chain("8", "qbvh", false), // another BVH
+        layout_chain("4", "qbvh_chunks", false),
+        layout_chain("4", "qbvh_chunks:chunk_bytes=64", false), // the default, spelled out
+        layout_chain("4", "qbvh_chunks:chunk_bytes=128", false),
+        layout_chain("4", "qbvh_chunks:frame=parent", false),
+        layout_chain("8", "qbvh_chunks", false), // another BVH
         layout_chain("4", "octree", false),
         layout_chain("8", "octree", false), // octrees ignore the BVH: same node
-        layout_chain("4", "octree1:chunk_bytes=32", false),
+        layout_chain("4", "octree_1bit:chunk_bytes=32", false),
     ];
     let (rows, c) = run_all(dir.path(), Versions::default(), &ch);
     let k: Vec<&str> = rows.iter().map(|r| r.keys["layout"].as_str()).collect();
@@ -941,7 +941,7 @@ fn layout_keys_follow_name_params_and_inputs() {
     assert!(
         rows[3]
             .method
-            .ends_with(" @qbvh bits=8,chunk_bytes=128,frame=chunk"),
+            .ends_with(" @qbvh_chunks bits=8,chunk_bytes=128,frame=chunk"),
         "{}",
         rows[3].method
     );
@@ -956,7 +956,7 @@ fn layout_with_rays_warm_lost_bin_and_version_bump() {
     let dir = tempfile::tempdir().unwrap();
     let ch = vec![
         layout_chain("4", "bvh2", true),
-        layout_chain("4", "qbvh:bits=6", true),
+        layout_chain("4", "qbvh_chunks:bits=6", true),
     ];
     let (rows, c) = run_all(dir.path(), Versions::default(), &ch);
     assert_eq!(
@@ -1024,7 +1024,7 @@ fn layout_input_errors() {
     let mut r = test_runner(dir.path(), Versions::default());
     for bad in [
         "zip",
-        "qbvh:chunk_bytes",
+        "qbvh_chunks:chunk_bytes",
         "bvh2:bits=8",
         "auto:max_slowdown=0",
     ] {

@@ -100,7 +100,7 @@ fn bvh2_against_itself_is_exactly_one() {
 fn timed_fields_keep_runs_and_spreads() {
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
-    let mut c = chain("lbvh", Some("qbvh"), true);
+    let mut c = chain("lbvh", Some("qbvh_chunks"), true);
     c.repeat = 3;
     c.compact = "collapse".into();
     let row = run(&mut r, &c);
@@ -172,7 +172,7 @@ fn timed_fields_keep_runs_and_spreads() {
     );
     assert_eq!(row.auto_search_slowdown, None);
     // One run: the noise is not measured (None), not zero.
-    let mut one = chain("binned-sah", Some("qbvh"), true);
+    let mut one = chain("binned-sah", Some("qbvh_chunks"), true);
     one.repeat = 1;
     let row = run(&mut r, &one);
     assert_eq!(row.build_seconds_runs.as_ref().map(Vec::len), Some(1));
@@ -189,10 +189,10 @@ fn invalid_specs_are_input_errors() {
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
     for bad in [
         "zip",
-        "qbvh:frame=sideways",
-        "qbvh:chunk_bytes=20",
-        "qbvh:bits=0",
-        "octree1:chunk_bytes=12",
+        "qbvh_chunks:frame=sideways",
+        "qbvh_chunks:chunk_bytes=20",
+        "qbvh_chunks:bits=0",
+        "octree_1bit:chunk_bytes=12",
         "octree:fill=dense",
         "auto:rays=1",
         "bvh2:",
@@ -207,14 +207,14 @@ fn invalid_specs_are_input_errors() {
 }
 
 #[test]
-fn qbvh_is_smaller_and_exact() {
+fn qbvh_chunks_is_smaller_and_exact() {
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
     let b = run(&mut r, &chain("sweep-sah", Some("bvh2"), true));
-    for spec in ["qbvh", "qbvh:chunk_bytes=128,frame=parent,bits=6"] {
+    for spec in ["qbvh_chunks", "qbvh_chunks:chunk_bytes=128,frame=parent,bits=6"] {
         let q = run(&mut r, &chain("sweep-sah", Some(spec), true));
         assert!(q.valid, "{spec}");
-        assert_eq!(q.layout.as_deref(), Some("qbvh"));
+        assert_eq!(q.layout.as_deref(), Some("qbvh_chunks"));
         assert!(
             q.topology_bytes.unwrap() < b.topology_bytes.unwrap(),
             "{spec}"
@@ -239,9 +239,9 @@ fn qbvh_is_smaller_and_exact() {
 fn octrees_share_one_node_across_builders() {
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
-    let a = run(&mut r, &chain("binned-sah", Some("octree1"), true));
+    let a = run(&mut r, &chain("binned-sah", Some("octree_1bit"), true));
     let before = r.counts.stage("layout");
-    let b = run(&mut r, &chain("spatial-median", Some("octree1"), true));
+    let b = run(&mut r, &chain("spatial-median", Some("octree_1bit"), true));
     assert_eq!(a.keys["layout"], b.keys["layout"]);
     assert_eq!(
         r.counts.stage("layout"),
@@ -259,7 +259,7 @@ fn octrees_share_one_node_across_builders() {
         assert!(row.topology_bits_per_node.unwrap() < 8.0);
         assert!(row.chunks.unwrap() > 0);
     }
-    // octree1 against the basic octree of the same construction.
+    // octree_1bit against the basic octree of the same construction.
     let o = run(&mut r, &chain("binned-sah", Some("octree"), true));
     assert_eq!(o.extra_box_hits_per_ray, Some(0.0));
     assert_eq!(o.layout_nodes, a.layout_nodes);
@@ -287,7 +287,7 @@ fn auto_with_thresholds_that_do_not_depend_on_timing() {
     assert_eq!(slow.layout.as_deref(), Some("bvh2"));
     let choice = slow.layout_choice.clone().unwrap();
     assert!(
-        choice.starts_with("bvh2:") && choice.contains("qbvh") && choice.contains("octree1"),
+        choice.starts_with("bvh2:") && choice.contains("qbvh_chunks") && choice.contains("octree_1bit"),
         "{choice}"
     );
     assert!(
@@ -431,7 +431,7 @@ fn auto_budget_and_over_limit_are_reported() {
 
 #[test]
 fn layouts_are_identical_at_any_thread_count() {
-    for spec in ["qbvh:frame=parent", "octree1:fill=dense"] {
+    for spec in ["qbvh_chunks:frame=parent", "octree_1bit:fill=dense"] {
         let mut hashes = Vec::new();
         for threads in [1, 2] {
             let dir = tempfile::tempdir().unwrap();

@@ -20,30 +20,30 @@ use std::fmt::Write;
 /// told apart, however small their measured spreads (systematic run-to-run effects such as cache
 /// and frequency state are not in the range of 5 runs).
 pub const TIE_PERCENT: f64 = 2.0;
-/// "Almost as fast" (Kilian 6.3: octree1's increase over the octree "only very small"): at most
+/// "Almost as fast" (Kilian 6.3: octree_1bit's increase over the octree "only very small"): at most
 /// this ratio of trace times.
 pub const ALMOST_AS_FAST: f64 = 1.15;
-/// Issue 5's targets: qbvh within 1.5x of bvh2, qbvh topology at most 0.5x bvh2's, octree1 at most
+/// Issue 5's targets: qbvh_chunks within 1.5x of bvh2, qbvh_chunks topology at most 0.5x bvh2's, octree_1bit at most
 /// 2 bits per node in 16-byte chunks.
-pub const QBVH_TARGET_SLOWDOWN: f64 = 1.5;
-pub const QBVH_TOPOLOGY_RATIO: f64 = 0.5;
-pub const OCTREE1_BITS_16: f64 = 2.0;
+pub const QBVH_CHUNKS_TARGET_SLOWDOWN: f64 = 1.5;
+pub const QBVH_CHUNKS_TOPOLOGY_RATIO: f64 = 0.5;
+pub const OCTREE_1BIT_BITS_16: f64 = 2.0;
 
 /// Kilian's best-case topology bits per node (full chunks), with the section that states it.
-/// qbvh: 5.2.1 (chunk bits plus the 48-bit key and 8-bit axis per node, so only for bits=8);
-/// octree1: 4.2.2 (the text's "512/488" for 64 B is a typo for 512/448 = 8/7); bvh2: 5.1 (256);
+/// qbvh_chunks: 5.2.1 (chunk bits plus the 48-bit key and 8-bit axis per node, so only for bits=8);
+/// octree_1bit: 4.2.2 (the text's "512/488" for 64 B is a typo for 512/448 = 8/7); bvh2: 5.1 (256);
 /// octree: 4.1 (32-bit nodes).
 pub fn kilian_bits_per_node(layout: &str, params: &BTreeMap<String, String>) -> Option<(f64, &'static str)> {
     let chunk = params.get("chunk_bytes").map(String::as_str);
     match layout {
         "bvh2" => Some((256.0, "5.1")),
         "octree" => Some((32.0, "4.1")),
-        "qbvh" if params.get("bits").is_none_or(|b| b == "8") => match chunk {
+        "qbvh_chunks" if params.get("bits").is_none_or(|b| b == "8") => match chunk {
             Some("64") => Some((58.67, "5.2.1, best case")),
             Some("128") => Some((57.45, "5.2.1, best case")),
             _ => None,
         },
-        "octree1" => match chunk {
+        "octree_1bit" => match chunk {
             Some("16") => Some((2.0, "4.2.2, best case")),
             Some("32") => Some((1.33, "4.2.2, best case")),
             Some("64") => Some((1.14, "4.2.2, best case")),
@@ -54,12 +54,12 @@ pub fn kilian_bits_per_node(layout: &str, params: &BTreeMap<String, String>) -> 
     }
 }
 
-/// Kilian's stated chunk fill rates: octree1 about 30% (7, from 6.3), qbvh below 10% (5.2.3: the
+/// Kilian's stated chunk fill rates: octree_1bit about 30% (7, from 6.3), qbvh_chunks below 10% (5.2.3: the
 /// highest, 64-byte chunks on Measure-one, "just under 10%"; 128 B lower).
 pub fn kilian_fill(layout: &str) -> Option<&'static str> {
     match layout {
-        "octree1" => Some("~30% (ch. 7, fig. 6.3)"),
-        "qbvh" => Some("&lt; 10% (5.2.3, fig. 5.4)"),
+        "octree_1bit" => Some("~30% (ch. 7, fig. 6.3)"),
+        "qbvh_chunks" => Some("&lt; 10% (5.2.3, fig. 5.4)"),
         _ => None,
     }
 }
@@ -69,7 +69,7 @@ pub fn kilian_fill(layout: &str) -> Option<&'static str> {
 pub struct Point<'a> {
     pub layout: String,
     pub params: BTreeMap<String, String>,
-    /// Short label: layout name and the parameters that vary in the experiment (`qbvh 64B frame=parent`).
+    /// Short label: layout name and the parameters that vary in the experiment (`qbvh_chunks 64B frame=parent`).
     pub label: String,
     pub row: &'a ResultRow,
 }
@@ -900,12 +900,12 @@ fn smaller_chunks(cases: &[Case], layout: &'static str, what: &'static str) -> F
     }
     let (kilian, claim) = if speed_claim {
         (
-            if layout == "octree1" { "4.2.4, fig. 4.15: 16 B fastest" } else { "5.2.3, fig. 5.3: 64 B faster than 128 B" },
+            if layout == "octree_1bit" { "4.2.4, fig. 4.15: 16 B fastest" } else { "5.2.3, fig. 5.3: 64 B faster than 128 B" },
             format!("{layout}: smaller chunks are faster (beyond the measured noise)"),
         )
     } else {
         (
-            if layout == "octree1" {
+            if layout == "octree_1bit" {
                 "4.2.4, fig. 4.15/4.16: topology smallest at 16 B"
             } else {
                 "5.2.3, fig. 5.3/5.4: 64 B smaller than 128 B"
@@ -914,21 +914,21 @@ fn smaller_chunks(cases: &[Case], layout: &'static str, what: &'static str) -> F
         )
     };
     let id = match (layout, speed_claim) {
-        ("octree1", false) => "1a",
-        ("octree1", true) => "1b",
+        ("octree_1bit", false) => "1a",
+        ("octree_1bit", true) => "1b",
         (_, false) => "1c",
         (_, true) => "1d",
     };
     Finding { id, claim, kilian: kilian.into(), cases: out }
 }
 
-/// Pairs of qbvh points differing only in `frame` (chunk, parent).
+/// Pairs of qbvh_chunks points differing only in `frame` (chunk, parent).
 fn frame_pairs<'c, 'a>(c: &'c Case<'a>) -> Vec<(&'c Point<'a>, &'c Point<'a>)> {
     let mut out = Vec::new();
-    for a in c.points.iter().filter(|p| p.layout == "qbvh" && get(p, "frame").as_deref() == Some("chunk")) {
+    for a in c.points.iter().filter(|p| p.layout == "qbvh_chunks" && get(p, "frame").as_deref() == Some("chunk")) {
         let mut rest = a.params.clone();
         rest.remove("frame");
-        for b in c.points.iter().filter(|p| p.layout == "qbvh" && get(p, "frame").as_deref() == Some("parent")) {
+        for b in c.points.iter().filter(|p| p.layout == "qbvh_chunks" && get(p, "frame").as_deref() == Some("parent")) {
             let mut rb = b.params.clone();
             rb.remove("frame");
             if rb == rest {
@@ -943,7 +943,7 @@ fn pair_label(c: &Case, a: &Point) -> String {
     let mut p = a.params.clone();
     p.remove("frame");
     let keys: Vec<String> = p.keys().cloned().collect();
-    format!("{} ({})", c.label, label_of("qbvh", &p, &keys).trim_start_matches("qbvh "))
+    format!("{} ({})", c.label, label_of("qbvh_chunks", &p, &keys).trim_start_matches("qbvh_chunks "))
 }
 
 fn frames(cases: &[Case]) -> (Finding, Finding) {
@@ -990,13 +990,13 @@ fn frames(cases: &[Case]) -> (Finding, Finding) {
     (
         Finding {
             id: "2a",
-            claim: "qbvh: chunk-root frame faster than parent frame (beyond the measured noise)".into(),
+            claim: "qbvh_chunks: chunk-root frame faster than parent frame (beyond the measured noise)".into(),
             kilian: "5.2.3, fig. 5.5 left".into(),
             cases: fast,
         },
         Finding {
             id: "2b",
-            claim: "qbvh: parent frame needs fewer triangle tests per ray".into(),
+            claim: "qbvh_chunks: parent frame needs fewer triangle tests per ray".into(),
             kilian: "5.2.3, fig. 5.5 right".into(),
             cases: tests,
         },
@@ -1009,16 +1009,16 @@ fn find<'c, 'a>(c: &'c Case<'a>, layout: &str, want: &[(&str, &str)]) -> Option<
         .find(|p| p.layout == layout && want.iter().all(|(k, v)| p.params.get(*k).is_none_or(|x| x == v)))
 }
 
-/// Kilian's chosen qbvh (5.2.3): 64-byte chunks, chunk-root frame, 8 bits.
-fn default_qbvh<'c, 'a>(c: &'c Case<'a>) -> Option<&'c Point<'a>> {
-    find(c, "qbvh", &[("chunk_bytes", "64"), ("frame", "chunk"), ("bits", "8")])
+/// Kilian's chosen qbvh_chunks (5.2.3): 64-byte chunks, chunk-root frame, 8 bits.
+fn default_qbvh_chunks<'c, 'a>(c: &'c Case<'a>) -> Option<&'c Point<'a>> {
+    find(c, "qbvh_chunks", &[("chunk_bytes", "64"), ("frame", "chunk"), ("bits", "8")])
 }
 
 fn octree_pair(cases: &[Case]) -> Finding {
     let mut out = Vec::new();
     for c in cases {
         let Some(o) = find(c, "octree", &[]) else { continue };
-        let Some(o1) = find(c, "octree1", &[("chunk_bytes", "16"), ("fill", "bfs")]) else { continue };
+        let Some(o1) = find(c, "octree_1bit", &[("chunk_bytes", "16"), ("fill", "bfs")]) else { continue };
         let (Some(so), Some(s1)) = (speed(o.row), speed(o1.row)) else { continue };
         if degenerate(o.row) || degenerate(o1.row) {
             out.push(not_applicable(c.label.clone(), &[o.row, o1.row]));
@@ -1029,7 +1029,7 @@ fn octree_pair(cases: &[Case]) -> Finding {
             case: c.label.clone(),
             verdict: at_most(ratio, ALMOST_AS_FAST),
             numbers: format!(
-                "octree {}, octree1 16B {}: {}",
+                "octree {}, octree_1bit 16B {}: {}",
                 fmt_timed(so, speed_word(o.row)),
                 fmt_timed(s1, speed_word(o1.row)),
                 fmt_timed(ratio, "x")
@@ -1038,20 +1038,20 @@ fn octree_pair(cases: &[Case]) -> Finding {
     }
     Finding {
         id: "3",
-        claim: format!("octree1 (16 B) almost as fast as octree: time ratio <= {ALMOST_AS_FAST} (beyond the measured noise)"),
+        claim: format!("octree_1bit (16 B) almost as fast as octree: time ratio <= {ALMOST_AS_FAST} (beyond the measured noise)"),
         kilian: "6.3, fig. 6.2: increase \"only very small\" (Hair: faster)".into(),
         cases: out,
     }
 }
 
-fn qbvh_speed(cases: &[Case]) -> (Finding, Finding) {
+fn qbvh_chunks_speed(cases: &[Case]) -> (Finding, Finding) {
     let (mut slower, mut target) = (Vec::new(), Vec::new());
     for c in cases {
-        let qs: Vec<&Point> = c.points.iter().filter(|p| p.layout == "qbvh").collect();
+        let qs: Vec<&Point> = c.points.iter().filter(|p| p.layout == "qbvh_chunks").collect();
         let slowdown = |p: &Point| {
             p.row.slowdown.filter(|v| v.is_finite()).map(|s| Timed { value: s, spread: p.row.slowdown_spread })
         };
-        if let Some(d) = default_qbvh(c).or(qs.first().copied()) {
+        if let Some(d) = default_qbvh_chunks(c).or(qs.first().copied()) {
             let case = format!("{} ({})", c.label, d.label);
             if slowdown(d).is_some() && degenerate(d.row) {
                 slower.push(not_applicable(case, &[d.row]));
@@ -1076,13 +1076,13 @@ fn qbvh_speed(cases: &[Case]) -> (Finding, Finding) {
         }
         let best = usable.iter().filter_map(|p| slowdown(p).map(|s| (s, *p))).min_by(|a, b| a.0.value.total_cmp(&b.0.value));
         if let Some((s, p)) = best {
-            let dflt = default_qbvh(c)
+            let dflt = default_qbvh_chunks(c)
                 .and_then(slowdown)
                 .map(|s| format!("; Kilian's 64B/chunk/8bit {}", fmt_timed(s, "x")))
                 .unwrap_or_default();
             target.push(CaseVerdict {
                 case: c.label.clone(),
-                verdict: at_most(s, QBVH_TARGET_SLOWDOWN),
+                verdict: at_most(s, QBVH_CHUNKS_TARGET_SLOWDOWN),
                 numbers: format!("best {} {}{dflt}", p.label, fmt_timed(s, "x")),
             });
         }
@@ -1090,20 +1090,20 @@ fn qbvh_speed(cases: &[Case]) -> (Finding, Finding) {
     (
         Finding {
             id: "4a",
-            claim: "qbvh clearly slower than bvh2 (slowdown > 1 beyond the measured noise)".into(),
+            claim: "qbvh_chunks clearly slower than bvh2 (slowdown > 1 beyond the measured noise)".into(),
             kilian: "6.3, 6.5, fig. 6.7: \"clear increase\"".into(),
             cases: slower,
         },
         Finding {
             id: "4b",
-            claim: format!("target: best qbvh within {QBVH_TARGET_SLOWDOWN}x of bvh2 (beyond the measured noise)"),
+            claim: format!("target: best qbvh_chunks within {QBVH_CHUNKS_TARGET_SLOWDOWN}x of bvh2 (beyond the measured noise)"),
             kilian: "issue 5 target (Kilian: \"can almost keep up\", 6.5)".into(),
             cases: target,
         },
     )
 }
 
-fn qbvh_topology(cases: &[Case]) -> Finding {
+fn qbvh_chunks_topology(cases: &[Case]) -> Finding {
     let mut out = Vec::new();
     for c in cases {
         let Some(b) = find(c, "bvh2", &[]) else { continue };
@@ -1111,10 +1111,10 @@ fn qbvh_topology(cases: &[Case]) -> Finding {
         let ratios: Vec<(f64, &Point)> = c
             .points
             .iter()
-            .filter(|p| p.layout == "qbvh")
+            .filter(|p| p.layout == "qbvh_chunks")
             .filter_map(|p| p.row.topology_bytes.map(|t| (t as f64 / bt as f64, p)))
             .collect();
-        let judged = default_qbvh(c)
+        let judged = default_qbvh_chunks(c)
             .and_then(|d| ratios.iter().find(|(_, p)| std::ptr::eq(*p, d)).copied())
             .or_else(|| ratios.iter().copied().min_by(|a, b| a.0.total_cmp(&b.0)));
         let Some((r, p)) = judged else { continue };
@@ -1125,9 +1125,9 @@ fn qbvh_topology(cases: &[Case]) -> Finding {
         let (lo, hi) = ratios.iter().fold((f64::INFINITY, 0.0f64), |(a, b), x| (a.min(x.0), b.max(x.0)));
         out.push(CaseVerdict {
             case: c.label.clone(),
-            verdict: if r <= QBVH_TOPOLOGY_RATIO { Verdict::Agrees } else { Verdict::Differs },
+            verdict: if r <= QBVH_CHUNKS_TOPOLOGY_RATIO { Verdict::Agrees } else { Verdict::Differs },
             numbers: format!(
-                "{}: {}x bvh2 ({} of {} bits/node); all qbvh {}..{}x",
+                "{}: {}x bvh2 ({} of {} bits/node); all qbvh_chunks {}..{}x",
                 p.label,
                 fmt_num(r),
                 p.row.topology_bits_per_node.map(fmt_num).unwrap_or_else(|| "n/a".into()),
@@ -1139,16 +1139,16 @@ fn qbvh_topology(cases: &[Case]) -> Finding {
     }
     Finding {
         id: "5",
-        claim: format!("qbvh topology <= {QBVH_TOPOLOGY_RATIO}x bvh2 (Kilian's 64B/chunk/8bit, else the smallest)"),
+        claim: format!("qbvh_chunks topology <= {QBVH_CHUNKS_TOPOLOGY_RATIO}x bvh2 (Kilian's 64B/chunk/8bit, else the smallest)"),
         kilian: "5.2.1: best case 58.67 / 57.45 bits per node (64 / 128 B) vs 256".into(),
         cases: out,
     }
 }
 
-fn octree1_bits(cases: &[Case]) -> Finding {
+fn octree_1bit_bits(cases: &[Case]) -> Finding {
     let mut out = Vec::new();
     for c in cases {
-        for p in c.points.iter().filter(|p| p.layout == "octree1" && get(p, "chunk_bytes").as_deref() == Some("16")) {
+        for p in c.points.iter().filter(|p| p.layout == "octree_1bit" && get(p, "chunk_bytes").as_deref() == Some("16")) {
             let case = format!("{} ({})", c.label, p.label);
             let Some(b) = p.row.topology_bits_per_node.filter(|v| v.is_finite()) else { continue };
             if degenerate(p.row) {
@@ -1157,7 +1157,7 @@ fn octree1_bits(cases: &[Case]) -> Finding {
             }
             out.push(CaseVerdict {
                 case,
-                verdict: if b <= OCTREE1_BITS_16 { Verdict::Agrees } else { Verdict::Differs },
+                verdict: if b <= OCTREE_1BIT_BITS_16 { Verdict::Agrees } else { Verdict::Differs },
                 numbers: format!(
                     "{} bits/node, fill {}",
                     fmt_num(b),
@@ -1168,7 +1168,7 @@ fn octree1_bits(cases: &[Case]) -> Finding {
     }
     Finding {
         id: "6",
-        claim: format!("octree1 at 16 B: <= {OCTREE1_BITS_16} bits per node"),
+        claim: format!("octree_1bit at 16 B: <= {OCTREE_1BIT_BITS_16} bits per node"),
         kilian: "4.2.2: 2 bits/node best case (full chunks); 16 B worst case 16".into(),
         cases: out,
     }
@@ -1177,8 +1177,8 @@ fn octree1_bits(cases: &[Case]) -> Finding {
 fn fills(cases: &[Case]) -> Finding {
     let mut out = Vec::new();
     for c in cases {
-        let q = default_qbvh(c).or_else(|| find(c, "qbvh", &[("chunk_bytes", "64")]));
-        let o = find(c, "octree1", &[("chunk_bytes", "16"), ("fill", "bfs")]);
+        let q = default_qbvh_chunks(c).or_else(|| find(c, "qbvh_chunks", &[("chunk_bytes", "64")]));
+        let o = find(c, "octree_1bit", &[("chunk_bytes", "16"), ("fill", "bfs")]);
         let (Some(q), Some(o)) = (q, o) else { continue };
         let (Some(fq), Some(fo)) = (q.row.chunk_fill, o.row.chunk_fill) else { continue };
         if degenerate(q.row) || degenerate(o.row) {
@@ -1193,8 +1193,8 @@ fn fills(cases: &[Case]) -> Finding {
     }
     Finding {
         id: "7",
-        claim: "qbvh chunks are filled less than octree1 chunks".into(),
-        kilian: "6.3, fig. 6.3 (qbvh &lt; 10%, octree1 ~30%)".into(),
+        claim: "qbvh_chunks chunks are filled less than octree_1bit chunks".into(),
+        kilian: "6.3, fig. 6.3 (qbvh_chunks &lt; 10%, octree_1bit ~30%)".into(),
         cases: out,
     }
 }
@@ -1215,19 +1215,19 @@ pub fn findings(rows: &[ResultRow]) -> Vec<Finding> {
         }
     }
     let (f2a, f2b) = frames(&cs);
-    let (f4a, f4b) = qbvh_speed(&cs);
+    let (f4a, f4b) = qbvh_chunks_speed(&cs);
     vec![
-        smaller_chunks(&mem_cases, "octree1", "smaller"),
-        smaller_chunks(&cs, "octree1", "faster"),
-        smaller_chunks(&mem_cases, "qbvh", "smaller"),
-        smaller_chunks(&cs, "qbvh", "faster"),
+        smaller_chunks(&mem_cases, "octree_1bit", "smaller"),
+        smaller_chunks(&cs, "octree_1bit", "faster"),
+        smaller_chunks(&mem_cases, "qbvh_chunks", "smaller"),
+        smaller_chunks(&cs, "qbvh_chunks", "faster"),
         f2a,
         f2b,
         octree_pair(&cs),
         f4a,
         f4b,
-        qbvh_topology(&mem_cases),
-        octree1_bits(&mem_cases),
+        qbvh_chunks_topology(&mem_cases),
+        octree_1bit_bits(&mem_cases),
         fills(&mem_cases),
     ]
 }
@@ -1353,8 +1353,8 @@ fn speed_table(cs: &[Case]) -> String {
         "<h3>Speed and accuracy</h3>\n<p>Trace s = median seconds of the ray set with the layout's own traversal; \
          bvh2 s = the same rays through bvh2 of the same BVH, timed alternately in the same run; slowdown = their \
          ratio (layout bvh2 is its own anchor: 1 exactly); spreads = (max &minus; min) / median over the runs (the \
-         slowdown's over the per-run ratios of the alternated pairs). Extra box hits / tests per ray: against the uncompressed structure of the same topology (qbvh vs \
-         bvh2, octree1 vs octree). Layout SAH = SAH cost with the boxes the traversal tests (quantized / implicit \
+         slowdown's over the per-run ratios of the alternated pairs). Extra box hits / tests per ray: against the uncompressed structure of the same topology (qbvh_chunks vs \
+         bvh2, octree_1bit vs octree). Layout SAH = SAH cost with the boxes the traversal tests (quantized / implicit \
          octant boxes); BVH SAH = the exact SAH cost of the chain's BVH.</p>\n<table><tr><th>case</th><th>layout</th>\
          <th>trace s</th><th>trace spread</th><th>bvh2 s</th><th>slowdown</th><th>slowdown spread</th><th>steps/ray</th><th>tests/ray</th><th>extra box hits/ray</th>\
          <th>extra tests/ray</th><th>layout SAH</th><th>BVH SAH</th><th>ratio</th></tr>\n",
@@ -1530,8 +1530,8 @@ pub(crate) fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<
     Some(Section {
         id: "layouts",
         title: "Compressed layouts (Kilian 2021)".into(),
-        intro: "Layout stage: bvh2 (flat 32-byte nodes), qbvh (quantized boxes, 1-bit topology in chunks; Kilian 5.2), \
-                octree (32-bit nodes; 4.1) and octree1 (1-bit octree in chunks; 4.2). Per scene (and chain and ray set): \
+        intro: "Layout stage: bvh2 (flat 32-byte nodes), qbvh_chunks (quantized boxes, 1-bit topology in chunks; Kilian 5.2), \
+                octree (32-bit nodes; 4.1) and octree_1bit (1-bit octree in chunks; 4.2). Per scene (and chain and ray set): \
                 bytes per triangle (topology, total) against trace time and slowdown vs bvh2, and against the extra \
                 triangle tests and box hits quantization costs; one curve per layout family (a layout with every \
                 parameter fixed but one), ringed points on the Pareto front (no other layout is both smaller and \

@@ -65,26 +65,26 @@ const fn l(layout: &'static str, params: &'static str, topo: f64, slowdown: f64,
 }
 
 /// Kilian's picture: smaller chunks smaller and faster, chunk frame faster, parent frame fewer
-/// tests, octree1 close to octree, qbvh slower than bvh2 but within 1.5x.
+/// tests, octree_1bit close to octree, qbvh_chunks slower than bvh2 but within 1.5x.
 const AGREEING: &[L] = &[
     l("bvh2", "", 64.0, 1.0, 0.0),
-    l("qbvh", "bits=8,chunk_bytes=64,frame=chunk", 20.0, 1.3, 0.5),
-    l("qbvh", "bits=8,chunk_bytes=128,frame=chunk", 30.0, 1.5, 0.5),
-    l("qbvh", "bits=8,chunk_bytes=64,frame=parent", 20.0, 1.4, 0.3),
-    l("qbvh", "bits=8,chunk_bytes=128,frame=parent", 30.0, 1.6, 0.3),
+    l("qbvh_chunks", "bits=8,chunk_bytes=64,frame=chunk", 20.0, 1.3, 0.5),
+    l("qbvh_chunks", "bits=8,chunk_bytes=128,frame=chunk", 30.0, 1.5, 0.5),
+    l("qbvh_chunks", "bits=8,chunk_bytes=64,frame=parent", 20.0, 1.4, 0.3),
+    l("qbvh_chunks", "bits=8,chunk_bytes=128,frame=parent", 30.0, 1.6, 0.3),
     l("octree", "max_depth=24,mult_threshold=2.0,prim_threshold=20", 8.0, 2.0, 0.0),
-    l("octree1", "chunk_bytes=16,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.5, 2.1, 0.0),
-    l("octree1", "chunk_bytes=32,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.6, 2.2, 0.0),
+    l("octree_1bit", "chunk_bytes=16,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.5, 2.1, 0.0),
+    l("octree_1bit", "chunk_bytes=32,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.6, 2.2, 0.0),
 ];
 
-/// Contradicts claims 1a/1b for octree1 (16 B bigger and slower than 32 B) and 2a (parent faster).
+/// Contradicts claims 1a/1b for octree_1bit (16 B bigger and slower than 32 B) and 2a (parent faster).
 const DIFFERING: &[L] = &[
     l("bvh2", "", 64.0, 1.0, 0.0),
-    l("qbvh", "bits=8,chunk_bytes=64,frame=chunk", 20.0, 1.6, 0.5),
-    l("qbvh", "bits=8,chunk_bytes=64,frame=parent", 20.0, 1.2, 0.3),
+    l("qbvh_chunks", "bits=8,chunk_bytes=64,frame=chunk", 20.0, 1.6, 0.5),
+    l("qbvh_chunks", "bits=8,chunk_bytes=64,frame=parent", 20.0, 1.2, 0.3),
     l("octree", "max_depth=24,mult_threshold=2.0,prim_threshold=20", 8.0, 2.0, 0.0),
-    l("octree1", "chunk_bytes=16,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.9, 2.5, 0.0),
-    l("octree1", "chunk_bytes=32,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.6, 2.2, 0.0),
+    l("octree_1bit", "chunk_bytes=16,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.9, 2.5, 0.0),
+    l("octree_1bit", "chunk_bytes=32,fill=bfs,max_depth=24,mult_threshold=2.0,prim_threshold=20", 0.6, 2.2, 0.0),
 ];
 
 fn rows(scene: &str, ls: &[L]) -> Vec<ResultRow> {
@@ -110,22 +110,22 @@ fn labels_and_families() {
         labels,
         [
             "bvh2",
-            "qbvh 64B frame=chunk",
-            "qbvh 128B frame=chunk",
-            "qbvh 64B frame=parent",
-            "qbvh 128B frame=parent",
+            "qbvh_chunks 64B frame=chunk",
+            "qbvh_chunks 128B frame=chunk",
+            "qbvh_chunks 64B frame=parent",
+            "qbvh_chunks 128B frame=parent",
             "octree",
-            "octree1 16B",
-            "octree1 32B"
+            "octree_1bit 16B",
+            "octree_1bit 32B"
         ]
     );
     let fams: Vec<(String, usize)> =
         layouts::families(&cs[0]).into_iter().map(|f| (f.label, f.members.len())).collect();
     assert!(fams.contains(&("bvh2".into(), 1)), "{fams:?}");
-    assert!(fams.contains(&("qbvh frame=chunk (by chunk size)".into(), 2)), "{fams:?}");
-    assert!(fams.contains(&("qbvh frame=parent (by chunk size)".into(), 2)), "{fams:?}");
-    assert!(fams.contains(&("qbvh 64B (by frame)".into(), 2)), "{fams:?}");
-    assert!(fams.contains(&("octree1 (by chunk size)".into(), 2)), "{fams:?}");
+    assert!(fams.contains(&("qbvh_chunks frame=chunk (by chunk size)".into(), 2)), "{fams:?}");
+    assert!(fams.contains(&("qbvh_chunks frame=parent (by chunk size)".into(), 2)), "{fams:?}");
+    assert!(fams.contains(&("qbvh_chunks 64B (by frame)".into(), 2)), "{fams:?}");
+    assert!(fams.contains(&("octree_1bit (by chunk size)".into(), 2)), "{fams:?}");
     assert!(fams.contains(&("octree".into(), 1)), "{fams:?}");
 }
 
@@ -133,15 +133,15 @@ fn labels_and_families() {
 fn pareto_front_hand_made() {
     let rs = rows("a", AGREEING);
     let cs = layouts::cases(&rs);
-    // Topology bytes vs slowdown: 128 B qbvh and parent frames are dominated by qbvh 64B chunk
-    // (same or fewer bytes, faster); octree1 32B by octree1 16B.
+    // Topology bytes vs slowdown: 128 B qbvh_chunks and parent frames are dominated by qbvh_chunks 64B chunk
+    // (same or fewer bytes, faster); octree_1bit 32B by octree_1bit 16B.
     assert_eq!(
         layouts::front(&cs[0], Metric::TopologyBytesPerTriangle, Metric::Slowdown),
-        ["octree1 16B", "octree", "qbvh 64B frame=chunk", "bvh2"]
+        ["octree_1bit 16B", "octree", "qbvh_chunks 64B frame=chunk", "bvh2"]
     );
-    // Against extra tests: bvh2/octree/octree1 have 0, so the smallest of them (octree1 16B)
+    // Against extra tests: bvh2/octree/octree_1bit have 0, so the smallest of them (octree_1bit 16B)
     // dominates everything else.
-    assert_eq!(layouts::front(&cs[0], Metric::TopologyBytesPerTriangle, Metric::ExtraTestsPerRay), ["octree1 16B"]);
+    assert_eq!(layouts::front(&cs[0], Metric::TopologyBytesPerTriangle, Metric::ExtraTestsPerRay), ["octree_1bit 16B"]);
 }
 
 #[test]
@@ -151,7 +151,7 @@ fn findings_agree_and_differ() {
     let v = |id| verdicts(&rs, id);
     assert_eq!(v("1a"), [("good".to_string(), Verdict::Agrees), ("bad".to_string(), Verdict::Differs)]);
     assert_eq!(v("1b"), [("good".to_string(), Verdict::Agrees), ("bad".to_string(), Verdict::Differs)]);
-    // qbvh chunk sizes: one case per frame on the agreeing scene, none on the other (one size).
+    // qbvh_chunks chunk sizes: one case per frame on the agreeing scene, none on the other (one size).
     assert_eq!(
         v("1c"),
         [("good (frame=chunk)".to_string(), Verdict::Agrees), ("good (frame=parent)".to_string(), Verdict::Agrees)]
@@ -163,17 +163,17 @@ fn findings_agree_and_differ() {
     assert!(frame_fast.iter().any(|c| c.0.starts_with("bad") && c.1 == Verdict::Differs));
     // Parent frame: fewer tests everywhere.
     assert!(v("2b").iter().all(|c| c.1 == Verdict::Agrees));
-    // octree1 / octree: 2.1/2.0 = 1.05 agrees, 2.5/2.0 = 1.25 differs.
+    // octree_1bit / octree: 2.1/2.0 = 1.05 agrees, 2.5/2.0 = 1.25 differs.
     assert_eq!(v("3"), [("good".to_string(), Verdict::Agrees), ("bad".to_string(), Verdict::Differs)]);
-    // qbvh 64B/chunk/8bit slower than bvh2 in both; best within 1.5x in both (bad: parent 1.2).
+    // qbvh_chunks 64B/chunk/8bit slower than bvh2 in both; best within 1.5x in both (bad: parent 1.2).
     assert!(v("4a").iter().all(|c| c.1 == Verdict::Agrees));
     assert!(v("4b").iter().all(|c| c.1 == Verdict::Agrees));
     // Topology 20/64 = 0.31 <= 0.5.
     assert!(v("5").iter().all(|c| c.1 == Verdict::Agrees));
-    // octree1 16B bits/node = topo * 4: 2.0 (agrees) and 3.6 (differs).
+    // octree_1bit 16B bits/node = topo * 4: 2.0 (agrees) and 3.6 (differs).
     assert_eq!(
         v("6"),
-        [("good (octree1 16B)".to_string(), Verdict::Agrees), ("bad (octree1 16B)".to_string(), Verdict::Differs)]
+        [("good (octree_1bit 16B)".to_string(), Verdict::Agrees), ("bad (octree_1bit 16B)".to_string(), Verdict::Differs)]
     );
 
     // The page says so.
@@ -184,8 +184,8 @@ fn findings_agree_and_differ() {
     assert!(html.contains("<td>1a</td><td>bad</td><td><span class=\"warn\">differs</span></td>"), "{html}");
     assert!(html.contains("<td>1a</td><td>good</td><td><span>agrees</span></td>"));
     assert!(html.contains("Kilian (stated)"));
-    assert!(html.contains("58.67 (5.2.1, best case)"), "qbvh 64 B stated bits per node");
-    assert!(html.contains("2 (4.2.2, best case)"), "octree1 16 B stated bits per node");
+    assert!(html.contains("58.67 (5.2.1, best case)"), "qbvh_chunks 64 B stated bits per node");
+    assert!(html.contains("2 (4.2.2, best case)"), "octree_1bit 16 B stated bits per node");
 }
 
 #[test]
@@ -196,14 +196,14 @@ fn missing_fields_single_layout_and_auto() {
         scene: "gen:x".into(),
         scene_name: "x".into(),
         method: "m".into(),
-        layout: Some("qbvh".into()),
+        layout: Some("qbvh_chunks".into()),
         ..Default::default()
     };
     // A single layout with numbers.
     let single = row("y", &AGREEING[0]);
     // An auto row.
     let mut auto = row("y", &AGREEING[1]);
-    auto.layout_choice = Some("qbvh 64B: smallest within max_slowdown 1.5 (1.3x)".into());
+    auto.layout_choice = Some("qbvh_chunks 64B: smallest within max_slowdown 1.5 (1.3x)".into());
     let rs = vec![bare, single, auto];
     assert!(layouts::findings(&rs).iter().all(|f| f.cases.is_empty()));
     let cs = layouts::cases(&rs);
@@ -230,7 +230,7 @@ fn missing_fields_single_layout_and_auto() {
 #[test]
 fn auto_over_limit_and_budget_cut_are_flagged() {
     let mut ok = row("y", &AGREEING[1]);
-    ok.layout_choice = Some("qbvh: within".into());
+    ok.layout_choice = Some("qbvh_chunks: within".into());
     ok.auto_max_slowdown = Some(1.5);
     ok.auto_budget_cut = Some(false);
     ok.auto_over_limit = Some(false);
@@ -240,7 +240,7 @@ fn auto_over_limit_and_budget_cut_are_flagged() {
     assert!(!html.contains("ran out of their time budget"));
     let mut over = row("z", &AGREEING[1]);
     over.slowdown = Some(1.8);
-    over.layout_choice = Some("qbvh: within on the search's rays".into());
+    over.layout_choice = Some("qbvh_chunks: within on the search's rays".into());
     over.auto_max_slowdown = Some(1.5);
     over.auto_budget_cut = Some(true);
     over.auto_over_limit = Some(true);
@@ -319,7 +319,7 @@ fn degenerate_cases_are_not_applicable() {
         let v = verdicts(&rs, id);
         assert!(!v.is_empty() && v.iter().all(|c| c.1 == Verdict::NotApplicable), "{id}: {v:?}");
     }
-    // The qbvh claims are not about the octree: unchanged.
+    // The qbvh_chunks claims are not about the octree: unchanged.
     assert!(verdicts(&rs, "4a").iter().all(|c| c.1 == Verdict::Agrees));
     // An empty scene: nothing applies.
     let mut empty = rows("empty", AGREEING);

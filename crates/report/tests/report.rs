@@ -365,7 +365,7 @@ fn dense_plots_have_no_overlapping_labels() {
             x_desc: "SAH cost".into(),
             bars: (0..60)
                 .map(|i| bars::Bar {
-                    label: format!("{} @qbvh bits=8,chunk_bytes=64,frame=parent,fill=dense {i}", "x".repeat(i % 30)),
+                    label: format!("{} @qbvh_chunks bits=8,chunk_bytes=64,frame=parent,fill=dense {i}", "x".repeat(i % 30)),
                     value: if i == 7 { f64::NAN } else { 1.0 + i as f64 },
                     color_index: i,
                 })

@@ -45,13 +45,13 @@ pub const BUILDER_VARIANTS: &[(&str, &[(&str, &str)])] = &[
 
 /// Layout parameter variants beyond the defaults (only for names in `LAYOUTS`).
 pub const LAYOUT_VARIANTS: &[(&str, &[(&str, &str)])] = &[
-    ("qbvh", &[("bits", "1")]),
-    ("qbvh", &[("bits", "1"), ("frame", "parent")]),
-    ("qbvh", &[("frame", "parent")]),
+    ("qbvh_chunks", &[("bits", "1")]),
+    ("qbvh_chunks", &[("bits", "1"), ("frame", "parent")]),
+    ("qbvh_chunks", &[("frame", "parent")]),
     ("octree", &[("max_depth", "1")]),
     ("octree", &[("prim_threshold", "1"), ("max_depth", "12")]),
-    ("octree1", &[("fill", "dense")]),
-    ("octree1", &[("chunk_bytes", "16"), ("fill", "bfs")]),
+    ("octree_1bit", &[("fill", "dense")]),
+    ("octree_1bit", &[("chunk_bytes", "16"), ("fill", "bfs")]),
 ];
 
 pub fn raw(kv: &[(&str, &str)]) -> BTreeMap<String, String> {

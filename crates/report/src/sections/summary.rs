@@ -25,7 +25,7 @@ impl Chip {
     }
 }
 
-/// A row's chain without its layout (` @qbvh ...`): layouts of one build share the build.
+/// A row's chain without its layout (` @qbvh_chunks ...`): layouts of one build share the build.
 pub fn build_label(r: &ResultRow) -> &str {
     r.method.split(" @").next().unwrap_or(&r.method)
 }

@@ -45,7 +45,7 @@ fn every_scene_chunk_size_frame_and_bits_matches_brute_force() {
                     for bits in [1u64, 4, 8, 16] {
                         let (cs, bs) = (chunk.to_string(), bits.to_string());
                         let sp = spec(
-                            "qbvh",
+                            "qbvh_chunks",
                             &[("chunk_bytes", &cs), ("frame", frame), ("bits", &bs)],
                         );
                         let l = check(&c, &sp);
@@ -69,7 +69,7 @@ fn every_scene_chunk_size_frame_and_bits_matches_brute_force() {
 
 /// The SIMD traversal (when the CPU has it) computes the same floats as the portable one.
 fn same_as_portable(c: &Case, l: &Layout) {
-    let Layout::Qbvh(q) = l else { unreachable!() };
+    let Layout::QbvhChunks(q) = l else { unreachable!() };
     let (a, b) = (
         q.trace(&c.scene.triangles, &c.rays),
         q.trace_portable(&c.scene.triangles, &c.rays),
@@ -82,11 +82,11 @@ fn same_as_portable(c: &Case, l: &Layout) {
 }
 
 #[test]
-fn default_qbvh_matches_brute_force_on_more_rays_and_is_deterministic() {
+fn default_qbvh_chunks_matches_brute_force_on_more_rays_and_is_deterministic() {
     for s in SCENES {
         let c = case(s, 2, 2000, 5);
         for frame in ["chunk", "parent"] {
-            let sp = spec("qbvh", &[("frame", frame)]);
+            let sp = spec("qbvh_chunks", &[("frame", frame)]);
             let a = check(&c, &sp);
             same_as_portable(&c, &a);
             let b = build(&sp, &c.bvh, &c.scene.triangles).unwrap();
@@ -109,12 +109,12 @@ fn topology_is_under_half_of_bvh2_at_chunk_64_bits_8() {
     for s in SCENES {
         for leaf in [1, 2] {
             let c = case(s, leaf, 0, 1);
-            let l = build(&spec("qbvh", &[]), &c.bvh, &c.scene.triangles).unwrap();
+            let l = build(&spec("qbvh_chunks", &[]), &c.bvh, &c.scene.triangles).unwrap();
             let m = l.memory();
             let bvh2 = c.bvh.nodes.len() as u64 * 32;
             assert!(
                 (m.topology_bytes as f64) < 0.5 * bvh2 as f64,
-                "{s} leaf {leaf}: qbvh topology {} vs bvh2 {bvh2} ({:.1} bits/node, fill {:.3})",
+                "{s} leaf {leaf}: qbvh_chunks topology {} vs bvh2 {bvh2} ({:.1} bits/node, fill {:.3})",
                 m.topology_bytes,
                 m.topology_bits_per_node(),
                 m.chunk_fill
@@ -133,7 +133,7 @@ fn tri_at_x(x: f32) -> Triangle {
 
 fn compare(tris: &[Triangle], bvh: &Bvh, rays: &[Ray], kv: &[(&str, &str)]) -> Layout {
     let want = brute_force(tris, rays);
-    let sp = spec("qbvh", kv);
+    let sp = spec("qbvh_chunks", kv);
     let l = build(&sp, bvh, tris).unwrap();
     l.validate(tris).unwrap();
     let got = l.trace(tris, rays);
@@ -173,7 +173,7 @@ fn a_leaf_only_root_is_one_leaf_without_chunks() {
         );
     }
     // An empty BVH traces to misses.
-    let empty = build(&spec("qbvh", &[]), &Bvh::default(), &[]).unwrap();
+    let empty = build(&spec("qbvh_chunks", &[]), &Bvh::default(), &[]).unwrap();
     empty.validate(&[]).unwrap();
     assert!(!empty.trace(&[], &rays).hits[0].is_hit());
 }
@@ -234,8 +234,8 @@ fn a_ten_thousand_deep_chain_traces_without_recursion() {
 #[test]
 fn validate_rejects_broken_layouts() {
     let c = case("gen:sphere:n=500", 2, 0, 1);
-    let l = build(&spec("qbvh", &[]), &c.bvh, &c.scene.triangles).unwrap();
-    let Layout::Qbvh(q) = l else { unreachable!() };
+    let l = build(&spec("qbvh_chunks", &[]), &c.bvh, &c.scene.triangles).unwrap();
+    let Layout::QbvhChunks(q) = l else { unreachable!() };
     q.validate(&c.scene.triangles).unwrap();
     // Collapsing every key to 0 makes the boxes points: not conservative.
     let mut bad = q.clone();
@@ -272,9 +272,9 @@ fn bad_parameters_are_rejected() {
         [("chunk_bytes", "60")],
         [("frame", "grandparent")],
     ] {
-        assert!(LayoutSpec::parse("qbvh", &raw(&kv)).is_err(), "{kv:?}");
+        assert!(LayoutSpec::parse("qbvh_chunks", &raw(&kv)).is_err(), "{kv:?}");
     }
-    assert!(LayoutSpec::parse("qbvh", &raw(&[("chunk_bytes", "48"), ("bits", "16")])).is_ok());
+    assert!(LayoutSpec::parse("qbvh_chunks", &raw(&[("chunk_bytes", "48"), ("bits", "16")])).is_ok());
 }
 
 /// Axis-parallel rays whose origins lie on triangle (hence box) planes: `RayBox::hit` tests a
@@ -306,7 +306,7 @@ fn axis_parallel_rays_on_box_planes() {
     let want = brute_force(tris, &rays);
     for frame in ["chunk", "parent"] {
         for bits in ["8", "3"] {
-            let sp = spec("qbvh", &[("frame", frame), ("bits", bits)]);
+            let sp = spec("qbvh_chunks", &[("frame", frame), ("bits", bits)]);
             let l = build(&sp, &c.bvh, tris).unwrap();
             let got = l.trace(tris, &rays);
             for (i, (g, w)) in got.hits.iter().zip(&want).enumerate() {

@@ -93,7 +93,7 @@ impl Config {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Octree1 {
+pub struct Octree1Bit {
     pub world: Aabb,
     pub margin: f64,
     pub config: Config,
@@ -110,8 +110,8 @@ pub struct Octree1 {
     pub prims: Vec<u32>,
 }
 
-impl Octree1 {
-    pub fn build(tris: &[Triangle], cfg: &Config) -> Result<Octree1, String> {
+impl Octree1Bit {
+    pub fn build(tris: &[Triangle], cfg: &Config) -> Result<Octree1Bit, String> {
         Self::build_until(tris, cfg, None)
     }
 
@@ -120,15 +120,15 @@ impl Octree1 {
         tris: &[Triangle],
         cfg: &Config,
         deadline: Option<std::time::Instant>,
-    ) -> Result<Octree1, String> {
-        cfg.check("octree1")?;
+    ) -> Result<Octree1Bit, String> {
+        cfg.check("octree_1bit")?;
         let o = Octree::build_until(tris, &cfg.base, deadline)?;
-        Octree1::from_octree(&o, cfg)
+        Octree1Bit::from_octree(&o, cfg)
     }
 
     /// The 1-bit form of a basic octree (its nodes must be in breadth-first order, as
     /// `Octree::build` makes them).
-    pub fn from_octree(o: &Octree, cfg: &Config) -> Result<Octree1, String> {
+    pub fn from_octree(o: &Octree, cfg: &Config) -> Result<Octree1Bit, String> {
         let wpc = (cfg.chunk_bytes / 8) as usize;
         let leaf_prims = |n: usize| {
             let s = (o.nodes[n] >> 1) as usize;
@@ -162,7 +162,7 @@ impl Octree1 {
                     let mut leaves = 0u32;
                     for (j, c) in ch.chunks.iter().enumerate() {
                         if c.leaf_offset != leaves {
-                            return Err("octree1: chunk leaf offsets out of order".into());
+                            return Err("octree_1bit: chunk leaf offsets out of order".into());
                         }
                         w[j * wpc] = c.first_child_chunk as u64 | (c.leaf_offset as u64) << 32;
                         for (i, &n) in c.slots.iter().enumerate() {
@@ -191,7 +191,7 @@ impl Octree1 {
                         if o.nodes[n] & 1 == 1 {
                             // Breadth-first node order: node n's children are 8 (rank + 1) bits on.
                             if (o.nodes[n] >> 1) as u64 != 8 * (ones + 1) + 1 {
-                                return Err("octree1: octree nodes are not breadth-first".into());
+                                return Err("octree_1bit: octree nodes are not breadth-first".into());
                             }
                             let pos = 32 + l;
                             w[k * wpc + pos / 64] |= 1u64 << (pos % 64);
@@ -206,9 +206,9 @@ impl Octree1 {
             }
         }
         if prims.len() != o.prims.len() {
-            return Err("octree1: references lost while chunking".into());
+            return Err("octree_1bit: references lost while chunking".into());
         }
-        Ok(Octree1 {
+        Ok(Octree1Bit {
             world: o.world,
             margin: o.margin,
             config: cfg.clone(),
@@ -262,13 +262,13 @@ impl Octree1 {
     pub fn validate(&self, tris: &[Triangle]) -> Result<(), String> {
         let wpc = (self.config.chunk_bytes / 8) as usize;
         if self.words.len() as u64 != self.chunks * wpc as u64 {
-            return Err("octree1: word count is not chunks * chunk_bytes / 8".into());
+            return Err("octree_1bit: word count is not chunks * chunk_bytes / 8".into());
         }
         if self.offsets.first() != Some(&0)
             || self.offsets.windows(2).any(|w| w[0] > w[1])
             || *self.offsets.last().unwrap() as usize != self.prims.len()
         {
-            return Err("octree1: offset_list is not a monotone cover of primitives_list".into());
+            return Err("octree_1bit: offset_list is not a monotone cover of primitives_list".into());
         }
         let leaves = self.leaves();
         let mut leaf_seen = vec![false; leaves];
@@ -282,7 +282,7 @@ impl Octree1 {
             Fill::Dense => self.nodes.saturating_sub(1) as usize,
         };
         if self.config.fill == Fill::Dense && (total_bits.div_ceil(slots) as u64) != self.chunks {
-            return Err("octree1: dense chunk count does not match the node count".into());
+            return Err("octree_1bit: dense chunk count does not match the node count".into());
         }
         if self.config.fill == Fill::Dense {
             // Milestones: each chunk's header = 1-bits before it; no bits beyond the last node.
@@ -290,7 +290,7 @@ impl Octree1 {
             for k in 0..self.chunks as usize {
                 if self.words[k * wpc] & 0xffff_ffff != ones {
                     return Err(format!(
-                        "octree1: milestone of chunk {k} is not the rank before it"
+                        "octree_1bit: milestone of chunk {k} is not the rank before it"
                     ));
                 }
                 for l in 0..slots {
@@ -298,7 +298,7 @@ impl Octree1 {
                     let pos = 32 + l;
                     let b = self.words[k * wpc + pos / 64] >> (pos % 64) & 1;
                     if i >= total_bits && b == 1 {
-                        return Err("octree1: bits set beyond the last node".into());
+                        return Err("octree_1bit: bits set beyond the last node".into());
                     }
                     ones += b;
                 }
@@ -310,7 +310,7 @@ impl Octree1 {
         while let Some(n) = stack.pop() {
             count += 1;
             if count > self.nodes {
-                return Err("octree1: more nodes reachable than stored".into());
+                return Err("octree_1bit: more nodes reachable than stored".into());
             }
             let (leaf, kids) = match self.config.fill {
                 Fill::Bfs => self.check_bfs(n, slots, &mut seen)?,
@@ -319,9 +319,9 @@ impl Octree1 {
             if let Some(l) = leaf {
                 let s = leaf_seen
                     .get_mut(l)
-                    .ok_or_else(|| format!("octree1: leaf index {l} of {leaves}"))?;
+                    .ok_or_else(|| format!("octree_1bit: leaf index {l} of {leaves}"))?;
                 if *s {
-                    return Err(format!("octree1: leaf {l} reached twice"));
+                    return Err(format!("octree_1bit: leaf {l} reached twice"));
                 }
                 *s = true;
             }
@@ -329,12 +329,12 @@ impl Octree1 {
         }
         if count != self.nodes {
             return Err(format!(
-                "octree1: {count} nodes reachable, {} stored",
+                "octree_1bit: {count} nodes reachable, {} stored",
                 self.nodes
             ));
         }
         if leaf_seen.iter().any(|s| !s) {
-            return Err("octree1: unreachable leaf".into());
+            return Err("octree_1bit: unreachable leaf".into());
         }
         match self.config.fill {
             Fill::Bfs => validate_topo(
@@ -358,7 +358,7 @@ impl Octree1 {
         self.words
             .get(i)
             .copied()
-            .ok_or_else(|| format!("octree1: word {i} out of range"))
+            .ok_or_else(|| format!("octree_1bit: word {i} out of range"))
     }
 
     /// One node of the bfs fill: (leaf index, children as (chunk << 32 | slot)).
@@ -380,13 +380,13 @@ impl Octree1 {
         }
         let (c, s) = ((n >> 32) as usize, (n & 0xffff_ffff) as usize);
         if c as u64 >= self.chunks || s >= slots {
-            return Err(format!("octree1: node (chunk {c}, slot {s}) out of range"));
+            return Err(format!("octree_1bit: node (chunk {c}, slot {s}) out of range"));
         }
         let flag = seen
             .get_mut(c * slots + s)
-            .ok_or("octree1: slot out of range")?;
+            .ok_or("octree_1bit: slot out of range")?;
         if *flag {
-            return Err(format!("octree1: node (chunk {c}, slot {s}) reached twice"));
+            return Err(format!("octree_1bit: node (chunk {c}, slot {s}) reached twice"));
         }
         *flag = true;
         let base = c * wpc;
@@ -419,9 +419,9 @@ impl Octree1 {
         let i = n as usize;
         let flag = seen
             .get_mut(i)
-            .ok_or_else(|| format!("octree1: bit {i} beyond the bit field"))?;
+            .ok_or_else(|| format!("octree_1bit: bit {i} beyond the bit field"))?;
         if *flag {
-            return Err(format!("octree1: bit {i} reached twice"));
+            return Err(format!("octree_1bit: bit {i} reached twice"));
         }
         *flag = true;
         let d = self.dense();

@@ -84,12 +84,12 @@ impl Config {
     pub fn from_spec(spec: &LayoutSpec) -> Result<Config, String> {
         let bits: u32 = spec.get("bits")?;
         if !(1..=16).contains(&bits) {
-            return Err(format!("layout `qbvh`: bits must be in 1..=16, got {bits}"));
+            return Err(format!("layout `qbvh_chunks`: bits must be in 1..=16, got {bits}"));
         }
         let chunk_bytes: u32 = spec.get("chunk_bytes")?;
         if !chunk_bytes.is_multiple_of(8) || !(48..=MAX_CHUNK_BYTES).contains(&chunk_bytes) {
             return Err(format!(
-                "layout `qbvh`: chunk_bytes must be a multiple of 8 in 48..={MAX_CHUNK_BYTES} \
+                "layout `qbvh_chunks`: chunk_bytes must be a multiple of 8 in 48..={MAX_CHUNK_BYTES} \
                  (40-byte header + at least one 64-bit bit-field word), got {chunk_bytes}"
             ));
         }
@@ -98,7 +98,7 @@ impl Config {
             "parent" => Frame::Parent,
             other => {
                 return Err(format!(
-                    "layout `qbvh`: frame must be `chunk` or `parent`, got `{other}`"
+                    "layout `qbvh_chunks`: frame must be `chunk` or `parent`, got `{other}`"
                 ))
             }
         };
@@ -367,7 +367,7 @@ impl KeyReader for Packed {
 // ---------------------------------------------------------------------------------------------
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Qbvh {
+pub struct QbvhChunks {
     pub bits: u32,
     pub chunk_bytes: u32,
     pub frame: Frame,
@@ -434,13 +434,13 @@ fn rank_bit(bf: &[u64], i: usize) -> (u32, bool) {
     (r, x >> b & 1 == 1)
 }
 
-impl Qbvh {
-    pub fn build(bvh: &Bvh, cfg: &Config) -> Result<Qbvh, String> {
+impl QbvhChunks {
+    pub fn build(bvh: &Bvh, cfg: &Config) -> Result<QbvhChunks, String> {
         let max_key = (1u32 << cfg.bits) - 1;
         let inv_max = 1.0 / max_key as f32;
         let wpc = cfg.words_per_chunk();
         let groups = cfg.groups();
-        let mut q = Qbvh {
+        let mut q = QbvhChunks {
             bits: cfg.bits,
             chunk_bytes: cfg.chunk_bytes,
             frame: cfg.frame,
@@ -468,17 +468,17 @@ impl Qbvh {
             let nd = &bvh.nodes[i as usize];
             if nd.is_leaf() {
                 if nd.first as u64 + nd.count as u64 > bvh.prim_indices.len() as u64 {
-                    return Err(format!("qbvh: leaf {i} references primitives out of range"));
+                    return Err(format!("qbvh_chunks: leaf {i} references primitives out of range"));
                 }
                 continue;
             }
             let l = nd.first as usize;
             if l + 1 >= n {
-                return Err(format!("qbvh: node {i} has children out of range"));
+                return Err(format!("qbvh_chunks: node {i} has children out of range"));
             }
             for c in [l, l + 1] {
                 if seen[c] {
-                    return Err(format!("qbvh: node {c} is reached twice"));
+                    return Err(format!("qbvh_chunks: node {c} is reached twice"));
                 }
                 seen[c] = true;
                 stack.push(c as u32);
@@ -497,7 +497,7 @@ impl Qbvh {
         q.fill = ch.fill();
         let slots = ch.used_slots() as usize;
         if slots as u64 + 1 != reached {
-            return Err("qbvh: chunker lost nodes".into());
+            return Err("qbvh_chunks: chunker lost nodes".into());
         }
         q.words = vec![0u64; ch.chunks.len() * wpc];
         q.keys = vec![0u8; (slots * 6 * cfg.bits as usize).div_ceil(8)];
@@ -794,14 +794,14 @@ impl Qbvh {
             || wpc <= HEADER_WORDS
             || !self.words.len().is_multiple_of(wpc)
         {
-            return Err("qbvh: bad parameters or chunk array length".into());
+            return Err("qbvh_chunks: bad parameters or chunk array length".into());
         }
         let nchunks = self.words.len() / wpc;
         let expect_keys =
             (self.nodes.saturating_sub(1) as usize * 6 * self.bits as usize).div_ceil(8);
         if self.keys.len() != expect_keys {
             return Err(format!(
-                "qbvh: node info has {} bytes, expected {expect_keys}",
+                "qbvh_chunks: node info has {} bytes, expected {expect_keys}",
                 self.keys.len()
             ));
         }
@@ -813,20 +813,20 @@ impl Qbvh {
             .offsets
             .len()
             .checked_sub(1)
-            .ok_or("qbvh: empty offset list")?;
+            .ok_or("qbvh_chunks: empty offset list")?;
         let leaf_range = |l: usize| -> Result<(usize, usize), String> {
             if l >= leaves {
-                return Err(format!("qbvh: leaf {l} out of range ({leaves} leaves)"));
+                return Err(format!("qbvh_chunks: leaf {l} out of range ({leaves} leaves)"));
             }
             let (a, b) = (self.offsets[l] as usize, self.offsets[l + 1] as usize);
             if a >= b || b > self.prims.len() {
-                return Err(format!("qbvh: leaf {l} has a bad primitive range {a}..{b}"));
+                return Err(format!("qbvh_chunks: leaf {l} has a bad primitive range {a}..{b}"));
             }
             Ok((a, b))
         };
         if nchunks == 0 {
             if leaves != 1 || self.nodes != 1 {
-                return Err("qbvh: a leaf root needs exactly one leaf and one node".into());
+                return Err("qbvh_chunks: a leaf root needs exactly one leaf and one node".into());
             }
             visit(usize::MAX, self.world, Some(leaf_range(0)?));
             return Ok(());
@@ -847,17 +847,17 @@ impl Qbvh {
             let h = header(&self.words, base);
             let bf = &self.words[base + HEADER_WORDS..base + wpc];
             if s + 1 >= cap {
-                return Err(format!("qbvh: chunk {c} slot {s} beyond the bit field"));
+                return Err(format!("qbvh_chunks: chunk {c} slot {s} beyond the bit field"));
             }
             let g = h.node_offset as usize + s;
             if g + 1 >= slots {
-                return Err(format!("qbvh: node info index {g} out of range"));
+                return Err(format!("qbvh_chunks: node info index {g} out of range"));
             }
             let grid = Grid::new(&frame, inv_max);
             let k = kr.pair(&self.keys, g);
             for j in 0..2 {
                 if std::mem::replace(&mut slot_seen[g + j], true) {
-                    return Err(format!("qbvh: node slot {} reached twice", g + j));
+                    return Err(format!("qbvh_chunks: node slot {} reached twice", g + j));
                 }
                 let id = next_id;
                 next_id += 1;
@@ -868,7 +868,7 @@ impl Qbvh {
                     let l = h.leaf_offset as usize + s + j - r as usize;
                     let range = leaf_range(l)?;
                     if std::mem::replace(&mut leaf_seen[l], true) {
-                        return Err(format!("qbvh: leaf {l} reached twice"));
+                        return Err(format!("qbvh_chunks: leaf {l} reached twice"));
                     }
                     visit(parent, b, Some(range));
                     continue;
@@ -883,7 +883,7 @@ impl Qbvh {
                 } else {
                     let cc = (h.child_chunks + r - inner_groups) as usize;
                     if cc >= nchunks || std::mem::replace(&mut chunk_seen[cc], true) {
-                        return Err(format!("qbvh: child chunk {cc} out of range or shared"));
+                        return Err(format!("qbvh_chunks: child chunk {cc} out of range or shared"));
                     }
                     todo.push((cc, 0, chunk_box(&self.words, cc * wpc), id));
                 }
@@ -891,15 +891,15 @@ impl Qbvh {
         }
         if count != self.nodes {
             return Err(format!(
-                "qbvh: {count} nodes reached, {} stored",
+                "qbvh_chunks: {count} nodes reached, {} stored",
                 self.nodes
             ));
         }
         if slot_seen.iter().any(|s| !s) || chunk_seen.iter().any(|s| !s) {
-            return Err("qbvh: unreachable chunks or node slots".into());
+            return Err("qbvh_chunks: unreachable chunks or node slots".into());
         }
         if leaf_seen.iter().any(|s| !s) {
-            return Err("qbvh: unreachable leaves".into());
+            return Err("qbvh_chunks: unreachable leaves".into());
         }
         Ok(())
     }
@@ -925,22 +925,22 @@ impl Qbvh {
 
     pub fn validate(&self, tris: &[Triangle]) -> Result<(), String> {
         if self.offsets.first() != Some(&0) || self.offsets.windows(2).any(|w| w[0] > w[1]) {
-            return Err("qbvh: offset list does not start at 0 or decreases".into());
+            return Err("qbvh_chunks: offset list does not start at 0 or decreases".into());
         }
         if self.nodes > 0 && self.offsets.last().map(|&x| x as usize) != Some(self.prims.len()) {
-            return Err("qbvh: offset list does not end at the primitive count".into());
+            return Err("qbvh_chunks: offset list does not end at the primitive count".into());
         }
         let mut seen = vec![false; tris.len()];
         for &p in &self.prims {
             let s = seen
                 .get_mut(p as usize)
-                .ok_or_else(|| format!("qbvh: primitive {p} out of range"))?;
+                .ok_or_else(|| format!("qbvh_chunks: primitive {p} out of range"))?;
             if std::mem::replace(s, true) {
-                return Err(format!("qbvh: triangle {p} referenced twice"));
+                return Err(format!("qbvh_chunks: triangle {p} referenced twice"));
             }
         }
         if let Some(t) = seen.iter().position(|s| !s) {
-            return Err(format!("qbvh: triangle {t} not referenced"));
+            return Err(format!("qbvh_chunks: triangle {t} not referenced"));
         }
         // Decode the tree, then check bottom-up that every dequantized box contains the exact
         // boxes of all triangles below it.
@@ -962,7 +962,7 @@ impl Qbvh {
             let u = below[id];
             if !u.is_empty() && !boxes[id].contains(&u) {
                 return Err(format!(
-                    "qbvh: node {id}: dequantized box {:?} does not contain its triangles {:?}",
+                    "qbvh_chunks: node {id}: dequantized box {:?} does not contain its triangles {:?}",
                     boxes[id], u
                 ));
             }
