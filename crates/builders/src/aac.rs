@@ -24,7 +24,7 @@
 //! at the higher levels). A task's merges are appended in post order with its inner-node ids shifted
 //! by the merges before it, so the output is the sequential one, bit for bit, at any thread count.
 use crate::bottomup::{to_bvh, ClusterTree};
-use crate::boxa::BoxA;
+use crate::simd_box::BoxA;
 use crate::sorted::SortedCodes;
 use bvhlab_bvh::{Aabb, Bvh};
 use glam::Vec3A;
@@ -115,7 +115,7 @@ struct Input<'a> {
     c: f64,
     alpha: f64,
     table: Vec<u32>,
-    /// `boxa::pow2_normalizer` of the boxes: distances are f32 half areas of scaled boxes.
+    /// `simd_box::pow2_normalizer` of the boxes: distances are f32 half areas of scaled boxes.
     scale: f32,
 }
 
@@ -136,7 +136,7 @@ impl<'a> Input<'a> {
             c,
             alpha,
             table,
-            scale: crate::boxa::pow2_normalizer(boxes),
+            scale: crate::simd_box::pow2_normalizer(boxes),
         }
     }
 

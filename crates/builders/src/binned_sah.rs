@@ -2,7 +2,7 @@
 //! node's centroid bounds along their largest axis only, binning by eq. 6 (epsilon 1e-5), two
 //! sweeps over the bins, the original SAH leaf-vs-split test (eq. 2 and 3), in-place partition,
 //! iteration with an explicit stack.
-use crate::boxa::BoxA;
+use crate::simd_box::BoxA;
 use crate::primref::{
     make_refs, make_refs_parallel, object_median, partition, partition_parallel, PrimRef,
 };
@@ -81,7 +81,7 @@ struct BinSplit {
 }
 
 /// Eq. 6's binning frame of one node, over centroids scaled by the build's power of two `s`
-/// (`boxa::pow2_for_max` of the scene: every scaled coordinate is in [-1, 1], so `c s - cb_min`
+/// (`simd_box::pow2_for_max` of the scene: every scaled coordinate is in [-1, 1], so `c s - cb_min`
 /// cannot overflow, as it did for centroids at -3e38 and 3e38; the scaling is exact, so a scene
 /// times 2^k gets the same bins). f32, as fast as the unscaled original (f64 here and in the bin
 /// sweep cost the build 12 %).
@@ -173,7 +173,7 @@ enum Plan {
 /// The build's power of two (see [`Bins`]): from the scene box, which holds every centroid.
 fn scene_scale(root: &Range) -> f32 {
     let m = root.bounds.min.abs().max(root.bounds.max.abs()).max_element();
-    crate::boxa::pow2_for_max(m)
+    crate::simd_box::pow2_for_max(m)
 }
 
 /// The "too small" centroid extent of a node: [`MIN_CENTROID_EXTENT_REL`] times the largest

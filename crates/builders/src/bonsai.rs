@@ -20,7 +20,7 @@
 //! descendants are one contiguous block of its own array in that order, so they are copied as a
 //! block with shifted indices (in parallel), and the primitives are renumbered in leaf order.
 //! Every decision depends only on the input, never on scheduling: same bytes at any thread count.
-use crate::boxa::BoxA;
+use crate::simd_box::BoxA;
 use crate::sweep_sah;
 use crate::TopDownConfig;
 use bvhlab_bvh::{Aabb, Bvh, Node, Vec3};

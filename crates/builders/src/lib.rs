@@ -25,7 +25,7 @@ pub mod incremental;
 pub mod lbvh;
 pub mod ploc;
 pub(crate) mod primref;
-pub(crate) mod boxa;
+pub(crate) mod simd_box;
 pub mod spatial_median;
 pub mod sorted;
 pub mod sweep_sah;

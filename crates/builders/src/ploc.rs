@@ -95,7 +95,7 @@ fn cluster(boxes: &[Aabb], order: &[u32], r: usize) -> (Vec<[u32; 2]>, u32) {
     if n < 2 {
         return (children, 0);
     }
-    let s = crate::boxa::pow2_normalizer(boxes);
+    let s = crate::simd_box::pow2_normalizer(boxes);
     let simd = avx2_available();
     // Large radii get larger chunks, so the recomputed border pairs stay a small share.
     let nn_chunk = CHUNK.max(r.saturating_mul(8));

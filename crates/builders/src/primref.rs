@@ -1,7 +1,7 @@
 //! Primitive references for the in-place builders (spatial median, binned SAH): box, centre and
 //! index in one 48-byte record, so binning and partitioning stream through memory sequentially
 //! instead of gathering boxes and centres by index.
-use crate::boxa::BoxA;
+use crate::simd_box::BoxA;
 use crate::topdown::Range;
 use bvhlab_bvh::{Aabb, Vec3};
 use glam::Vec3A;

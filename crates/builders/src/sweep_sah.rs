@@ -11,7 +11,7 @@
 //! the primitives, [`build_weighted`] the top tree over mini-tree roots, each item weighted by its
 //! primitive count in the SAH (the record's spare word holds the weight, so the plain build's records
 //! and loops are unchanged).
-use crate::boxa::BoxA;
+use crate::simd_box::BoxA;
 use crate::topdown::{build_nodes, Range};
 use crate::TopDownConfig;
 use bvhlab_bvh::{Aabb, Bvh, Node, Vec3};
@@ -57,7 +57,7 @@ struct Sweeper {
     tmp: Vec<SweepRef>,
     /// Side flag per primitive index (thesis 3.3.1).
     is_left: Vec<bool>,
-    /// `boxa::pow2_for_max` of the items: areas are `BoxA::half_area_scaled` by it.
+    /// `simd_box::pow2_for_max` of the items: areas are `BoxA::half_area_scaled` by it.
     scale: Vec3A,
 }
 
@@ -183,7 +183,7 @@ impl Sweeper {
             .map(|p| p.min.abs().max(p.max.abs()).max_element())
             .filter(|m| m.is_finite())
             .fold(0.0f32, f32::max);
-        let scale = Vec3A::splat(crate::boxa::pow2_for_max(m));
+        let scale = Vec3A::splat(crate::simd_box::pow2_for_max(m));
         Sweeper {
             sorted,
             right_area: vec![0.0; n],

@@ -1,6 +1,6 @@
 //! The iterative top-down driver shared by the builders (thesis 3.1.1: iteration with an explicit
 //! stack instead of recursion). It owns the node array; the split decision is a separate function.
-use crate::boxa::BoxA;
+use crate::simd_box::BoxA;
 use crate::primref::PrimRef;
 use bvhlab_bvh::Node;
 
