@@ -270,7 +270,7 @@ impl DynTree {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use bvhlab_bvh::Vec3;
+    use crate::Vec3;
 
     fn four() -> Bvh {
         // ((p0, p1), (p2, p3)) in depth-first layout.
@@ -296,8 +296,8 @@ mod tests {
         // Layout differs from the builder's (breadth-first pairs) but the tree is the same.
         let back = t.to_bvh();
         let c = CostParams::default();
-        assert!((t.sah_cost(c) - bvhlab_bvh::metrics(&bvh, c).sah_cost).abs() < 1e-9);
-        assert!((bvhlab_bvh::metrics(&back, c).sah_cost - bvhlab_bvh::metrics(&bvh, c).sah_cost).abs() < 1e-9);
+        assert!((t.sah_cost(c) - crate::metrics(&bvh, c).sah_cost).abs() < 1e-9);
+        assert!((crate::metrics(&back, c).sah_cost - crate::metrics(&bvh, c).sah_cost).abs() < 1e-9);
         assert_eq!(DynTree::from_bvh(&back).to_bvh(), back);
         assert_eq!(t.inner_nodes(), vec![0, 1, 2]);
         assert_eq!(t.sibling(3), 4);
@@ -318,6 +318,6 @@ mod tests {
         t.refit_up(p);
         t.check().unwrap();
         let b = t.to_bvh();
-        bvhlab_bvh::validate(&b, &(0..4).map(|i| Aabb::new(Vec3::splat(i as f32), Vec3::splat(i as f32 + 0.5))).collect::<Vec<_>>()).unwrap();
+        crate::validate(&b, &(0..4).map(|i| Aabb::new(Vec3::splat(i as f32), Vec3::splat(i as f32 + 0.5))).collect::<Vec<_>>()).unwrap();
     }
 }
