@@ -72,7 +72,7 @@ fn closest_hits_match_brute_force_on_generated_scenes() {
             }
             let got = trace(&bvh, &scene.triangles, &rays);
             for (i, (g, o)) in got.hits.iter().zip(&oracle).enumerate() {
-                // Same triangle, or the same t on a tie (ARCHITECTURE invariant 3): duplicate
+                // Same triangle, or the same t on a tie (ARCHITECTURE.md, invariant 3): duplicate
                 // triangles in sibling leaves can lose the lower-index tie-break in traversal.
                 let same = g.prim == o.prim
                     || (g.is_hit()

@@ -7,7 +7,7 @@
 //! [`Octree::margin`]), so references may repeat; that is what makes the exact closest hit
 //! possible: the hit point lies in some leaf box, and that leaf references the triangle.
 //!
-//! Decisions where Kilian is inconsistent or silent (ARCHITECTURE.md, "Octrees"):
+//! Decisions where Kilian is inconsistent or silent (docs/decisions.md, "Kilian 2021: inconsistencies"):
 //! - leaf iff `n < prim_threshold` (Alg. 1 and the text of 4.1.2; 4.1.4 says "<="), or
 //!   `num_dupl > mult_threshold * n` (Alg. 1; the text's "interior iff num_dupl < mult * n" differs
 //!   only at equality; Alg. 1 makes `mult_threshold = 1` mean "split only without duplication"),

@@ -13,7 +13,7 @@
 //!    (smaller than the frame, so more precision where primitives are); the final code is the
 //!    concise index followed by the in-cell code.
 //!
-//! Choices where the text is silent (see also ARCHITECTURE.md, "Encoding choices"):
+//! Choices where the text is silent (see also docs/decisions.md, "Encoding choices"):
 //! - Fixed width: the total length is the scheme's length T (3 x bits for Morton, 64 for EMC);
 //!   a cell whose concise index has L bits gets the top T - L bits of its in-cell code:
 //!   `code = prefix << (T - L) | incell >> L`. The grid redistributes bits, it adds none.

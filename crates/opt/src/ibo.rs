@@ -317,7 +317,7 @@ impl CostOf {
     }
     fn eval(&self, tree: &DynTree, inner: &[u32]) -> f64 {
         if self.root_sa == 0.0 {
-            // Zero-area root: every node counts with ratio 1 (ARCHITECTURE, metrics).
+            // Zero-area root: every node counts with ratio 1 (docs/decisions.md, "Metrics with a zero-area root").
             return self.c_t * inner.len() as f64 + self.leaf_term;
         }
         let s: f64 = inner.iter().map(|&i| tree.nodes[i as usize].bounds.area_f64()).sum();
