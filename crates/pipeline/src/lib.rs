@@ -3,6 +3,7 @@
 //! are made from. The only crate that knows about hashing, caching and files (besides scene
 //! loading). `memtrack` installs the counting global allocator (peak layout build memory).
 
+pub mod atomic;
 pub mod catalogue;
 pub mod codec;
 pub mod error;
