@@ -1,6 +1,27 @@
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
+/// `a < b ? a : b`: one `minss`/`minps` in slab tests and box unions of hot loops (`f32::min` adds
+/// NaN handling they do not need: a NaN input only makes a later `near <= far` false, a miss).
+#[inline(always)]
+pub fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `a > b ? a : b`: see [`fmin`].
+#[inline(always)]
+pub fn fmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
 /// Axis-aligned bounding box. The empty box has min = +inf, max = -inf so that `grow` needs no branch.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Aabb {

@@ -10,6 +10,7 @@
 //! (must be 0).
 //! `--sweep`: Kilian 4.1.4: mult_threshold 1.3..2.4 (prim_threshold 20) and prim_threshold 5..35
 //! (mult 2.0): nodes, references, octree and octree1 (16 B bfs) topology bytes, trace time.
+use bvhlab_geom::stats::median;
 use bvhlab_build::{binned_sah, TopDownConfig};
 use bvhlab_geom::load_scene;
 use bvhlab_layout::octree::{self, Octree};
@@ -17,11 +18,6 @@ use bvhlab_layout::octree1::{self, Fill, Octree1};
 use bvhlab_layout::{bvh2::Bvh2, Memory};
 use bvhlab_trace::{random_rays, Hit, Ray, TraceStats};
 use std::time::Instant;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
 
 fn same_hit(g: &Hit, w: &Hit) -> bool {
     g.prim == w.prim || (g.is_hit() && w.is_hit() && (g.t - w.t).abs() <= 1e-6 * w.t.abs())
@@ -52,7 +48,7 @@ fn race(
     times
         .into_iter()
         .zip(last)
-        .map(|(t, s)| (median(t), s.unwrap()))
+        .map(|(t, s)| (median(&t), s.unwrap()))
         .collect()
 }
 

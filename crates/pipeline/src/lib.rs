@@ -22,6 +22,8 @@ pub mod sweep;
 
 /// The layout crate, for callers listing layouts and their parameters (the CLI).
 pub use bvhlab_layout;
+/// Median, spread and range of repeated runs (shared with the report).
+pub use bvhlab_geom::stats;
 /// Step count at which heat maps saturate (the report draws their colour scale).
 pub use bvhlab_trace::heatmap::HEAT_MAX_STEPS;
 pub use error::{Error, Result};

@@ -11,6 +11,7 @@ use crate::stages::*;
 use crate::store::{now_unix, Machine, Manifest, Store};
 use crate::ResultRow;
 use bvhlab_bvh::Bvh;
+use bvhlab_geom::stats::{median, spread};
 use bvhlab_geom::Scene;
 use bvhlab_trace::Camera;
 use serde::Serialize;

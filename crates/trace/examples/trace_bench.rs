@@ -5,16 +5,12 @@
 //! image size), their shadow rays and random rays (thesis 4.4), each `runs` times on 1 thread and
 //! on all threads. One JSON line per ray set: median Mrays/s, mean steps and tests per ray, hit
 //! rate. With a PNG path, also writes the primary-ray traversal-step heat map (Bittner 2013 fig. 1).
+use bvhlab_geom::stats::median;
 use bvhlab_build::{binned_sah, TopDownConfig};
 use bvhlab_bvh::Bvh;
 use bvhlab_geom::Triangle;
 use bvhlab_trace::{heatmap, primary_rays, random_rays, shadow_rays, trace, Camera, Ray};
 use std::time::Instant;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
 
 /// Process CPU time (user + system) in seconds from /proc/self/stat (Linux), if readable. On a
 /// shared, oversubscribed machine wall time inflates; CPU time of a 1-thread run does not.
@@ -59,7 +55,7 @@ fn bench(
     } else {
         None
     };
-    (mr(median(wall)), cpu)
+    (mr(median(&wall)), cpu)
 }
 
 fn main() {
