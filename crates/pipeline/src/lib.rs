@@ -9,6 +9,7 @@ pub mod codec;
 pub mod error;
 pub mod estimate;
 pub mod experiment;
+pub mod heatmap;
 pub mod key;
 pub mod lockfile;
 pub mod memtrack;

@@ -1317,11 +1317,9 @@ impl Runner {
         let heatmap = match rays_spec {
             RaySpec::Primary { width, height } => {
                 let path = self.store.path("measure", &node.key, "png");
-                Store::write_atomic_with(&path, |tmp| {
-                    bvhlab_trace::heatmap::write_heatmap_png(tmp, &st.steps, width, height)
-                })?;
-                let bytes = std::fs::read(&path)
+                let bytes = crate::heatmap::heatmap_png(&st.steps, width, height)
                     .map_err(|e| Error::internal(format!("{}: {e}", path.display())))?;
+                Store::write_atomic(&path, &bytes)?;
                 files.insert("png".to_string(), blake3::hash(&bytes).to_hex().to_string());
                 Some(format!("measure/{}.png", node.key.hex()))
             }

@@ -123,9 +123,12 @@ fn main() {
         );
     }
     if let Some(path) = args.get(4) {
-        if let Err(e) =
-            heatmap::write_heatmap_png(std::path::Path::new(path), &first.steps, side, side)
-        {
+        let rgb = heatmap::heatmap_rgb(&first.steps, side, side);
+        let written = rgb.and_then(|rgb| {
+            image::save_buffer(path, &rgb, side, side, image::ColorType::Rgb8)
+                .map_err(|e| format!("{path}: {e}"))
+        });
+        if let Err(e) = written {
             eprintln!("error: {e}");
             std::process::exit(1);
         }
