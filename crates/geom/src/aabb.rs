@@ -64,6 +64,16 @@ impl Aabb {
     pub fn union(&self, b: &Aabb) -> Aabb {
         Aabb { min: self.min.min(b.min), max: self.max.max(b.max) }
     }
+    /// Largest distance from the box centre to any of `points` (0 for none): the radius of the
+    /// sphere random rays start on (thesis 4.4). In f64: squared f32 lengths underflow below 1e-19
+    /// and overflow above 1e19 (issue 15).
+    pub fn enclosing_radius(&self, points: impl IntoIterator<Item = Vec3>) -> f32 {
+        let c = self.center().as_dvec3();
+        points
+            .into_iter()
+            .map(|p| (p.as_dvec3() - c).length() as f32)
+            .fold(0.0f32, f32::max)
+    }
     #[inline]
     pub fn extent(&self) -> Vec3 {
         self.max - self.min

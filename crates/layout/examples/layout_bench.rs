@@ -107,10 +107,7 @@ fn main() {
             },
         );
         let bounds = scene.bounds();
-        let radius = centers
-            .iter()
-            .map(|c| (*c - bounds.center()).length())
-            .fold(0.0, f32::max);
+        let radius = bounds.enclosing_radius(centers.iter().copied());
         let rays: Vec<Ray> = random_rays(&bounds, radius, n_rays, 42);
         let name = std::path::Path::new(path)
             .file_name()

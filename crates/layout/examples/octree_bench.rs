@@ -124,10 +124,7 @@ fn main() {
         );
         let bvh2 = Bvh2::build(&bvh);
         let b = scene.bounds();
-        let radius = centers
-            .iter()
-            .map(|c| (*c - b.center()).length())
-            .fold(0.0, f32::max);
+        let radius = b.enclosing_radius(centers.iter().copied());
         let rays = random_rays(&b, radius, n_rays, 42);
         if sweep {
             run_sweep(&pool, name, tris, &bvh2, &rays, rounds);

@@ -1786,13 +1786,7 @@ pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Sen
 /// centroid.
 fn random_ray_set(scene: &Scene, count: u32, seed: u64) -> Vec<bvhlab_trace::Ray> {
     let bounds = scene.bounds();
-    let c = bounds.center();
-    let r = scene
-        .triangles
-        .iter()
-        // f64: squared f32 lengths underflow below 1e-19 and overflow above 1e19 (issue 15).
-        .map(|t| (t.bounds().center().as_dvec3() - c.as_dvec3()).length() as f32)
-        .fold(0.0f32, f32::max);
+    let r = bounds.enclosing_radius(scene.triangles.iter().map(|t| t.bounds().center()));
     bvhlab_trace::random_rays(&bounds, r, count as usize, seed)
 }
 

@@ -93,10 +93,7 @@ fn main() {
     let first = trace(&bvh, tris, &primary);
     let hit_t: Vec<f32> = first.hits.iter().map(|h| h.t).collect();
     let shadow = shadow_rays(&primary, &hit_t, cam.light(&bounds));
-    let radius = centers
-        .iter()
-        .map(|c| (*c - bounds.center()).length())
-        .fold(0.0, f32::max);
+    let radius = bounds.enclosing_radius(centers.iter().copied());
     let random = random_rays(&bounds, radius, n_rays, 1);
     let threads = rayon::current_num_threads();
     println!(
