@@ -16,6 +16,7 @@
 //! `bvh_fnv`, a hash of its canonical bytes (equal hashes = identical trees, e.g. the parallel
 //! binned SAH vs the sequential one). A builder that panics (not implemented yet) gets an `error`
 //! line and the others still run.
+use bvhlab_geom::stats::{median, min_max};
 use bvhlab_builders::aac::AacConfig;
 use bvhlab_builders::binned_sah::CentroidTermination;
 use bvhlab_builders::bonsai::{self, BonsaiConfig};
@@ -142,11 +143,6 @@ fn fnv(bvh: &Bvh) -> u64 {
         })
 }
 
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 fn usage(msg: &str) -> ! {
     eprintln!("{msg}\nusage: build_bench SCENE [runs=5] [threads=1] [BUILDERS (comma list)]");
     eprintln!("builders: {}", ALL.join(","));
@@ -218,22 +214,22 @@ fn main() {
             println!("{{{head},\"error\":{:?}}}", format!("panicked: {msg}"));
             continue;
         }
-        let mut total: Vec<f64> = parts
+        let total: Vec<f64> = parts
             .iter()
             .map(|p| p.encode + p.build + p.collapse)
             .collect();
-        let mut enc: Vec<f64> = parts.iter().map(|p| p.encode).collect();
-        let mut bld: Vec<f64> = parts.iter().map(|p| p.build).collect();
-        let mut col: Vec<f64> = parts.iter().map(|p| p.collapse).collect();
-        let total_med = median(&mut total);
+        let enc: Vec<f64> = parts.iter().map(|p| p.encode).collect();
+        let bld: Vec<f64> = parts.iter().map(|p| p.build).collect();
+        let col: Vec<f64> = parts.iter().map(|p| p.collapse).collect();
+        let total_med = median(&total);
         let valid = validate(&bvh, &boxes).err().unwrap_or_else(|| "ok".into());
         let m = metrics(&bvh, cost);
         println!(
             "{{{head},\"build_ms_median\":{total_med:.2},\"build_ms_min\":{:.2},\"encode_ms_median\":{:.2},\"build_part_ms_median\":{:.2},\"collapse_ms_median\":{:.2},\"sah_cost\":{:.3},\"leaves\":{},\"refs_per_leaf\":{:.3},\"depth\":{},\"bvh_fnv\":\"{:016x}\",\"deterministic\":{deterministic},\"valid\":{valid:?}}}",
-            total[0],
-            median(&mut enc),
-            median(&mut bld),
-            median(&mut col),
+            min_max(total.iter().copied()).0,
+            median(&enc),
+            median(&bld),
+            median(&col),
             m.sah_cost,
             m.leaves,
             m.refs_per_leaf,

@@ -53,23 +53,9 @@ pub fn build(boxes: &[Aabb], sorted: &SortedCodes, cfg: &PlocConfig) -> Bvh {
     )
 }
 
-/// `a < b ? a : b`: one `minps` (Rust's `f32::min` adds NaN handling the hot loop does not need).
-#[inline(always)]
-fn mn(a: f32, b: f32) -> f32 {
-    if a < b {
-        a
-    } else {
-        b
-    }
-}
-#[inline(always)]
-fn mx(a: f32, b: f32) -> f32 {
-    if a > b {
-        a
-    } else {
-        b
-    }
-}
+// `a < b ? a : b` and `a > b ? a : b`: one `minps` / `maxps` each (Rust's `f32::min` adds NaN
+// handling the hot loop does not need).
+use bvhlab_geom::aabb::{fmax as mx, fmin as mn};
 
 /// Cluster boxes as six coordinate arrays (min x y z, max x y z), so the distance kernel runs over
 /// consecutive clusters in SIMD lanes.

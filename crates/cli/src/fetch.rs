@@ -3,6 +3,7 @@
 //! files, verifies size and BLAKE3 against the catalogue, and only then moves each file into place
 //! (temporary file in the scene directory + rename). A file that fails verification is deleted and
 //! nothing in place is touched; files already present and verified are skipped.
+use bvhlab_pipeline::atomic::write_atomic_file;
 use bvhlab_pipeline::catalogue::{self, SceneEntry, StoredFile, FROM_ENV};
 use bvhlab_pipeline::{Error, Result};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -171,9 +172,8 @@ fn fetch_one(
             f.file, f.bytes, f.blake3
         ));
     }
-    let tmp = dir.join(format!(".{}.fetch-{}.tmp", f.file, std::process::id()));
-    let result = (|| -> std::result::Result<(), String> {
-        let mut out = std::fs::File::create(&tmp).map_err(|e| format!("{}: {e}", tmp.display()))?;
+    // The rename survives a crash: the temporary is fsynced, then the directory.
+    let result = write_atomic_file(&dest, |out| {
         let mut hasher = blake3::Hasher::new();
         let mut n = 0u64;
         let mut buf = vec![0u8; 1 << 16];
@@ -195,7 +195,7 @@ fn fetch_one(
             }
             hasher.update(&buf[..k]);
             out.write_all(&buf[..k])
-                .map_err(|e| format!("{}: {e}", tmp.display()))?;
+                .map_err(|e| format!("{}: {e}", dest.display()))?;
             bar.inc(k as u64);
         }
         let actual = hasher.finalize().to_hex().to_string();
@@ -208,19 +208,8 @@ fn fetch_one(
                 if dest.exists() { " (the file in place is unchanged)" } else { " (nothing written)" }
             ));
         }
-        out.sync_all()
-            .map_err(|e| format!("{}: {e}", tmp.display()))?;
-        drop(out);
-        std::fs::rename(&tmp, &dest).map_err(|e| format!("{}: {e}", dest.display()))?;
-        // The rename itself survives a crash once the directory is synced.
-        if let Ok(d) = std::fs::File::open(dir) {
-            let _ = d.sync_all();
-        }
         Ok(())
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
+    });
     result.map(|()| true)
 }
 

@@ -1,6 +1,27 @@
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
+/// `a < b ? a : b`: one `minss`/`minps` in slab tests and box unions of hot loops (`f32::min` adds
+/// NaN handling they do not need: a NaN input only makes a later `near <= far` false, a miss).
+#[inline(always)]
+pub fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `a > b ? a : b`: see [`fmin`].
+#[inline(always)]
+pub fn fmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
 /// Axis-aligned bounding box. The empty box has min = +inf, max = -inf so that `grow` needs no branch.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Aabb {
@@ -42,6 +63,16 @@ impl Aabb {
     #[inline]
     pub fn union(&self, b: &Aabb) -> Aabb {
         Aabb { min: self.min.min(b.min), max: self.max.max(b.max) }
+    }
+    /// Largest distance from the box centre to any of `points` (0 for none): the radius of the
+    /// sphere random rays start on (thesis 4.4). In f64: squared f32 lengths underflow below 1e-19
+    /// and overflow above 1e19 (issue 15).
+    pub fn enclosing_radius(&self, points: impl IntoIterator<Item = Vec3>) -> f32 {
+        let c = self.center().as_dvec3();
+        points
+            .into_iter()
+            .map(|p| (p.as_dvec3() - c).length() as f32)
+            .fold(0.0f32, f32::max)
     }
     #[inline]
     pub fn extent(&self) -> Vec3 {

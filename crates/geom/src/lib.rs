@@ -7,6 +7,7 @@ pub mod gen;
 pub mod obj;
 pub mod rng;
 pub mod scene;
+pub mod stats;
 
 pub use aabb::Aabb;
 pub use glam::Vec3;

@@ -9,6 +9,7 @@
 //! rays (as in tests/common) alternated with bvh2 in every round, the slowdown (median layout /
 //! median bvh2, by wall time and by the tracing thread's CPU time when on 1 thread), extra steps and
 //! extra triangle tests per ray against bvh2, and hits differing from bvh2 (must be 0).
+use bvhlab_geom::stats::median;
 use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_bvh::CostParams;
 use bvhlab_geom::load_scene;
@@ -16,11 +17,6 @@ use bvhlab_layout::{build, Layout, LayoutSpec};
 use bvhlab_trace::{random_rays, Hit, Ray, TraceStats};
 use std::collections::BTreeMap;
 use std::time::Instant;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
 
 /// CPU time of the calling thread in seconds (Linux schedstat, ns resolution), if readable.
 fn thread_cpu() -> Option<f64> {
@@ -111,10 +107,7 @@ fn main() {
             },
         );
         let bounds = scene.bounds();
-        let radius = centers
-            .iter()
-            .map(|c| (*c - bounds.center()).length())
-            .fold(0.0, f32::max);
+        let radius = bounds.enclosing_radius(centers.iter().copied());
         let rays: Vec<Ray> = random_rays(&bounds, radius, n_rays, 42);
         let name = std::path::Path::new(path)
             .file_name()
@@ -175,8 +168,8 @@ fn main() {
                 .filter(|(a, b)| !same(a, b))
                 .count();
             let per_ray = |a: u64, b: u64| (a as f64 - b as f64) / rays.len().max(1) as f64;
-            let (ml, m2w) = (median(wl), median(w2));
-            let slow_cpu = median(cl) / median(c2);
+            let (ml, m2w) = (median(&wl), median(&w2));
+            let slow_cpu = median(&cl) / median(&c2);
             let label = format!("{}:{}", spec.name, spec.params_string());
             println!(
                 "{:<24} {:<38} {:>8.2} {:>8.2} {:>7.1} {:>7} {:>6.3} {:>8.2} {:>8.2} {:>8.1} {:>8.1} {:>7.3} {:>7.3} {:>7.2} {:>7.2} {:>5}",

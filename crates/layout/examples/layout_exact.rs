@@ -77,10 +77,7 @@ fn main() {
             },
         );
         let b = scene.bounds();
-        let radius = centers
-            .iter()
-            .map(|c| (*c - b.center()).length())
-            .fold(0.0, f32::max);
+        let radius = b.enclosing_radius(centers.iter().copied());
         let rays = random_rays(&b, radius, n_rays, 7);
         let t = Instant::now();
         let want = brute_force(tris, &rays);

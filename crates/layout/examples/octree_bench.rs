@@ -10,6 +10,7 @@
 //! (must be 0).
 //! `--sweep`: Kilian 4.1.4: mult_threshold 1.3..2.4 (prim_threshold 20) and prim_threshold 5..35
 //! (mult 2.0): nodes, references, octree and octree_1bit (16 B bfs) topology bytes, trace time.
+use bvhlab_geom::stats::median;
 use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_geom::load_scene;
 use bvhlab_layout::octree::{self, Octree};
@@ -17,11 +18,6 @@ use bvhlab_layout::octree_1bit::{self, Fill, Octree1Bit};
 use bvhlab_layout::{bvh2::Bvh2, Memory};
 use bvhlab_trace::{random_rays, Hit, Ray, TraceStats};
 use std::time::Instant;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
 
 fn same_hit(g: &Hit, w: &Hit) -> bool {
     g.prim == w.prim || (g.is_hit() && w.is_hit() && (g.t - w.t).abs() <= 1e-6 * w.t.abs())
@@ -52,7 +48,7 @@ fn race(
     times
         .into_iter()
         .zip(last)
-        .map(|(t, s)| (median(t), s.unwrap()))
+        .map(|(t, s)| (median(&t), s.unwrap()))
         .collect()
 }
 
@@ -128,10 +124,7 @@ fn main() {
         );
         let bvh2 = Bvh2::build(&bvh);
         let b = scene.bounds();
-        let radius = centers
-            .iter()
-            .map(|c| (*c - b.center()).length())
-            .fold(0.0, f32::max);
+        let radius = b.enclosing_radius(centers.iter().copied());
         let rays = random_rays(&b, radius, n_rays, 42);
         if sweep {
             run_sweep(&pool, name, tris, &bvh2, &rays, rounds);

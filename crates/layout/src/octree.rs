@@ -544,22 +544,7 @@ pub fn trace_one<T: Topo>(
     ray: &Ray,
     stack: &mut Vec<(T::N, Aabb, f32)>,
 ) -> (Hit, u32, u32) {
-    #[inline(always)]
-    fn mn(a: f32, b: f32) -> f32 {
-        if a < b {
-            a
-        } else {
-            b
-        }
-    }
-    #[inline(always)]
-    fn mx(a: f32, b: f32) -> f32 {
-        if a > b {
-            a
-        } else {
-            b
-        }
-    }
+    use bvhlab_geom::aabb::{fmax as mx, fmin as mn};
     let mut best = Hit {
         t: ray.tmax,
         prim: u32::MAX,

@@ -2,15 +2,11 @@
 //! Sorts N (default 10 M) random 64-bit codes with their indices; median of RUNS (default 5) at
 //! 1 and 2 threads, beside `slice::sort_unstable` and rayon's `par_sort_unstable` of the same
 //! (code, index) pairs as anchors. One line per method and thread count.
+use bvhlab_geom::stats::median;
 use bvhlab_geom::rng::SplitMix64;
 use bvhlab_morton::radix;
 use rayon::prelude::*;
 use std::time::Instant;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -51,7 +47,7 @@ fn main() {
                 pairs.par_sort_unstable();
                 t_par.push(t.elapsed().as_secs_f64());
             }
-            let ms = |v: Vec<f64>| median(v) * 1e3;
+            let ms = |v: Vec<f64>| median(&v) * 1e3;
             println!("radix::sort_with_index   n={n} threads={threads} median_ms={:.1}", ms(t_radix));
             if only_radix {
                 return;

@@ -8,15 +8,11 @@
 //! noisy), reports medians, the costs before / after / after `collapse`, passes, stop reason, the
 //! ratio ibo / build time, and the passes needed for 90% of the final reduction. `chain=N` runs ibo
 //! N more times on its own output (different seeds) to look for lower costs.
+use bvhlab_geom::stats::median;
 use bvhlab_builders::TopDownConfig;
 use bvhlab_bvh::{collapse::collapse, metrics, Bvh, CostParams};
 use bvhlab_opt::ibo::{optimize, IboConfig, Measure};
 use std::time::Instant;
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[v.len() / 2]
-}
 
 /// Process CPU seconds (user + system, all threads) from /proc/self/stat: the machine is shared,
 /// so wall time alone overstates both programs unevenly.
@@ -86,8 +82,8 @@ fn main() {
         last = Some((bvh, o));
     }
     let (bvh, o) = last.unwrap();
-    let (mb, mo) = (median(&mut tb), median(&mut to));
-    let (mcb, mco) = (median(&mut cb), median(&mut co));
+    let (mb, mo) = (median(&tb), median(&to));
+    let (mcb, mco) = (median(&cb), median(&co));
     println!("cpu: build {mcb:.2}s ibo {mco:.2}s ratio {:.2}", mco / mcb.max(0.01));
     let c_before = metrics(&bvh, cost).sah_cost;
     let c_after = metrics(&o.bvh, cost).sah_cost;

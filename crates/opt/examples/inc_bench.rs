@@ -11,17 +11,13 @@
 //! the build counters. `order` permutes the input before inserting (to measure how much the
 //! result depends on the file's order). Kensler: sweep-SAH leaf=1 build, then hill climbing
 //! (`runs` times, median) and/or one annealing run capped by `sa_seconds`.
+use bvhlab_geom::stats::median;
 use bvhlab_builders::TopDownConfig;
 use bvhlab_bvh::{collapse::collapse, metrics, Aabb, Bvh, CostParams};
 use bvhlab_builders::incremental::{build_variant, IncConfig, Variant};
 use bvhlab_opt::kensler::{optimize, optimize_scaled, KenslerConfig, TempScale};
 use bvhlab_opt::SplitMix64;
 use std::time::Instant;
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[v.len() / 2]
-}
 
 fn morton3(c: [f32; 3], lo: [f32; 3], ext: [f32; 3]) -> u64 {
     let mut code = 0u64;
@@ -116,7 +112,7 @@ fn main() {
             icfg.batch,
             icfg.ofrac,
             icfg.coh,
-            median(&mut times),
+            median(&times),
             tc,
             metrics(&col, cost).sah_cost
         );
@@ -161,7 +157,7 @@ fn main() {
             let o = metrics(&collapse(&r.bvh, cost), cost).sah_cost;
             println!(
                 "kensler-hc: {:.3} s (median of {runs}), {} passes, stop {}, cost {c:.2}, collapsed {o:.2}, rotations {}",
-                median(&mut times),
+                median(&times),
                 r.trace.len() - 1,
                 r.stop.as_str(),
                 r.trace.iter().map(|p| p.moved).sum::<u64>()

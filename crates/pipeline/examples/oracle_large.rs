@@ -40,11 +40,7 @@ fn main() {
             }
         };
         let b = scene.bounds();
-        let radius = scene
-            .triangles
-            .iter()
-            .map(|t| (t.bounds().center() - b.center()).length())
-            .fold(0.0, f32::max);
+        let radius = b.enclosing_radius(scene.triangles.iter().map(|t| t.bounds().center()));
         let rays = bvhlab_trace::random_rays(&b, radius, rays_n, 42);
         let load_s = t.elapsed().as_secs_f64();
         let t = Instant::now();

@@ -3,11 +3,13 @@
 //! are made from. The only crate that knows about hashing, caching and files (besides scene
 //! loading). `memtrack` installs the counting global allocator (peak layout build memory).
 
+pub mod atomic;
 pub mod catalogue;
 pub mod codec;
 pub mod error;
 pub mod estimate;
 pub mod experiment;
+pub mod heatmap;
 pub mod key;
 pub mod lockfile;
 pub mod memtrack;
@@ -21,6 +23,8 @@ pub mod sweep;
 
 /// The layout crate, for callers listing layouts and their parameters (the CLI).
 pub use bvhlab_layout;
+/// Median, spread and range of repeated runs (shared with the report).
+pub use bvhlab_geom::stats;
 /// Step count at which heat maps saturate (the report draws their colour scale).
 pub use bvhlab_trace::heatmap::HEAT_MAX_STEPS;
 pub use error::{Error, Result};

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 /// Flat, serializable result of one chain. The report turns rows into a polars DataFrame column by
 /// column through serde_json, so later issues add fields here (Option, so old rows still read) and
 /// the report picks them up. Times are medians over `repeat` runs; every timed quantity `X` also has
-/// `X_spread` ((max - min) / median over its runs, `stages::spread`) and, where it is measured
+/// `X_spread` ((max - min) / median over its runs, `stats::spread`) and, where it is measured
 /// directly, `X_runs` (every run, run order).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct ResultRow {
@@ -44,7 +44,7 @@ pub struct ResultRow {
     pub valid: bool,
     pub bvh_hash: String,
     pub build_seconds: f64,
-    /// (max - min) / median of the build runs (`stages::spread`): the noise of `build_seconds`. None
+    /// (max - min) / median of the build runs (`stats::spread`): the noise of `build_seconds`. None
     /// with fewer than two runs (noise not measured).
     #[serde(default)]
     pub build_seconds_spread: Option<f64>,
@@ -59,7 +59,7 @@ pub struct ResultRow {
     pub encode_params: Option<String>,
     /// Median seconds of the encode stage (codes + sort).
     pub encode_seconds: Option<f64>,
-    /// (max - min) / median of the encode runs (`stages::spread`): the noise of `encode_seconds`. None
+    /// (max - min) / median of the encode runs (`stats::spread`): the noise of `encode_seconds`. None
     /// with fewer than two runs (noise not measured).
     #[serde(default)]
     pub encode_seconds_spread: Option<f64>,
@@ -89,7 +89,7 @@ pub struct ResultRow {
     /// Median seconds of the optimize stage (included in `total_build_seconds`: Bittner 2013's
     /// build_s is build plus optimization).
     pub optimize_seconds: Option<f64>,
-    /// (max - min) / median of the optimize runs (`stages::spread`): the noise of `optimize_seconds`. None
+    /// (max - min) / median of the optimize runs (`stats::spread`): the noise of `optimize_seconds`. None
     /// with fewer than two runs (noise not measured).
     #[serde(default)]
     pub optimize_seconds_spread: Option<f64>,
@@ -126,7 +126,7 @@ pub struct ResultRow {
     pub focus_sah_cost: Option<f64>,
     /// Median seconds of the compaction stage (0 when none).
     pub compact_seconds: f64,
-    /// (max - min) / median of the compaction runs (`stages::spread`): the noise of `compact_seconds`. None
+    /// (max - min) / median of the compaction runs (`stats::spread`): the noise of `compact_seconds`. None
     /// with fewer than two runs (noise not measured).
     #[serde(default)]
     pub compact_seconds_spread: Option<f64>,
@@ -140,7 +140,7 @@ pub struct ResultRow {
     pub traversal_steps_per_ray: Option<f64>,
     pub intersections_per_ray: Option<f64>,
     pub trace_seconds: Option<f64>,
-    /// (max - min) / median of the trace runs (`stages::spread`): the noise of `trace_seconds`. None
+    /// (max - min) / median of the trace runs (`stats::spread`): the noise of `trace_seconds`. None
     /// with fewer than two runs (noise not measured).
     #[serde(default)]
     pub trace_seconds_spread: Option<f64>,
@@ -176,7 +176,7 @@ pub struct ResultRow {
     pub peak_build_bytes: Option<u64>,
     /// Median seconds of the layout build.
     pub layout_seconds: Option<f64>,
-    /// (max - min) / median of the layout build runs (`stages::spread`): the noise of `layout_seconds`. None
+    /// (max - min) / median of the layout build runs (`stats::spread`): the noise of `layout_seconds`. None
     /// with fewer than two runs (noise not measured).
     #[serde(default)]
     pub layout_seconds_spread: Option<f64>,
@@ -193,7 +193,7 @@ pub struct ResultRow {
     /// Median seconds of the same rays through bvh2 of the same BVH, timed in the same run
     /// alternately with the layout's trace; `slowdown` = trace_seconds / bvh2_trace_seconds.
     pub bvh2_trace_seconds: Option<f64>,
-    /// (max - min) / median of the bvh2 anchor trace runs (`stages::spread`): the noise of `bvh2_trace_seconds`. None
+    /// (max - min) / median of the bvh2 anchor trace runs (`stats::spread`): the noise of `bvh2_trace_seconds`. None
     /// with fewer than two runs (noise not measured).
     #[serde(default)]
     pub bvh2_trace_seconds_spread: Option<f64>,

@@ -11,6 +11,7 @@ use crate::stages::*;
 use crate::store::{now_unix, Machine, Manifest, Store};
 use crate::ResultRow;
 use bvhlab_bvh::Bvh;
+use bvhlab_geom::stats::{median, spread};
 use bvhlab_geom::Scene;
 use bvhlab_trace::Camera;
 use serde::Serialize;
@@ -1316,11 +1317,9 @@ impl Runner {
         let heatmap = match rays_spec {
             RaySpec::Primary { width, height } => {
                 let path = self.store.path("measure", &node.key, "png");
-                Store::write_atomic_with(&path, |tmp| {
-                    bvhlab_trace::heatmap::write_heatmap_png(tmp, &st.steps, width, height)
-                })?;
-                let bytes = std::fs::read(&path)
+                let bytes = crate::heatmap::heatmap_png(&st.steps, width, height)
                     .map_err(|e| Error::internal(format!("{}: {e}", path.display())))?;
+                Store::write_atomic(&path, &bytes)?;
                 files.insert("png".to_string(), blake3::hash(&bytes).to_hex().to_string());
                 Some(format!("measure/{}.png", node.key.hex()))
             }
@@ -1787,13 +1786,7 @@ pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Sen
 /// centroid.
 fn random_ray_set(scene: &Scene, count: u32, seed: u64) -> Vec<bvhlab_trace::Ray> {
     let bounds = scene.bounds();
-    let c = bounds.center();
-    let r = scene
-        .triangles
-        .iter()
-        // f64: squared f32 lengths underflow below 1e-19 and overflow above 1e19 (issue 15).
-        .map(|t| (t.bounds().center().as_dvec3() - c.as_dvec3()).length() as f32)
-        .fold(0.0f32, f32::max);
+    let r = bounds.enclosing_radius(scene.triangles.iter().map(|t| t.bounds().center()));
     bvhlab_trace::random_rays(&bounds, r, count as usize, seed)
 }
 

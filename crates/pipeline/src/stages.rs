@@ -660,24 +660,6 @@ pub struct LayoutArtifact {
     pub summary: LayoutSummary,
 }
 
-/// Relative spread of repeated timings: (max - min) / median. None with fewer than two runs (no
-/// noise measured), a non-finite run or a median <= 0. `<name>_spread` in result rows.
-pub fn spread(v: &[f64]) -> Option<f64> {
-    if v.len() < 2 || v.iter().any(|x| !x.is_finite()) {
-        return None;
-    }
-    let m = median(v);
-    if m <= 0.0 {
-        return None;
-    }
-    let (lo, hi) = v
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
-            (a.min(x), b.max(x))
-        });
-    Some((hi - lo) / m)
-}
-
 /// Per-run slowdowns of alternated runs: `layout[i] / bvh2[i]` (run i of each side were timed
 /// back to back). Empty when the counts differ or a bvh2 run is not positive.
 pub fn paired_ratios(layout: &[f64], bvh2: &[f64]) -> Vec<f64> {
@@ -687,19 +669,6 @@ pub fn paired_ratios(layout: &[f64], bvh2: &[f64]) -> Vec<f64> {
     layout.iter().zip(bvh2).map(|(a, b)| a / b).collect()
 }
 
-pub fn median(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(|a, b| a.total_cmp(b));
-    let n = s.len();
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
-}
 
 #[cfg(test)]
 mod tests {
@@ -803,21 +772,7 @@ mod tests {
     }
 
     #[test]
-    fn medians() {
-        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
-        assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), 2.5);
-        assert_eq!(median(&[]), 0.0);
-    }
-
-    #[test]
-    fn spreads() {
-        assert_eq!(spread(&[1.0, 2.0, 3.0]), Some(1.0));
-        assert_eq!(spread(&[0.1, 0.1, 0.1, 0.1]), Some(0.0));
-        // One run: no noise measured (not zero noise).
-        assert_eq!(spread(&[0.5]), None);
-        assert_eq!(spread(&[]), None);
-        assert_eq!(spread(&[0.0, 0.0]), None);
-        assert_eq!(spread(&[1.0, f64::NAN]), None);
+    fn paired() {
         assert_eq!(paired_ratios(&[2.0, 3.0], &[1.0, 2.0]), vec![2.0, 1.5]);
         assert!(paired_ratios(&[2.0, 3.0], &[1.0]).is_empty());
         assert!(paired_ratios(&[2.0], &[0.0]).is_empty());

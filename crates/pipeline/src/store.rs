@@ -18,6 +18,7 @@
 //! re-checking, under the lock, that no other process completed it meanwhile; see `run.rs`
 //! (`cached`, `commit`) for the protocol and why it cannot deadlock. Temporary files carry their
 //! writer's host tag, so cleanup judges a writer's liveness by `/proc` only on its own host.
+use crate::atomic;
 use crate::codec;
 use crate::error::{Error, Result};
 use crate::key::Key;
@@ -28,7 +29,7 @@ use std::collections::HashMap;
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// What produced an artifact, stored beside it as JSON.
@@ -183,8 +184,6 @@ impl Drop for Store {
         }
     }
 }
-
-static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
 fn io_err(what: &str, path: &Path, e: std::io::Error) -> Error {
     Error::internal(format!("{what} {}: {e}", path.display()))
@@ -523,7 +522,7 @@ impl Store {
         }
     }
 
-    /// Writes `bytes` atomically to `path` (temp file in the same dir, fsync, rename).
+    /// Writes `bytes` atomically to `path` (see `crate::atomic`).
     pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         Self::write_atomic_with(path, |tmp| fs::write(tmp, bytes).map_err(|e| e.to_string()))
     }
@@ -533,39 +532,10 @@ impl Store {
         path: &Path,
         write: impl FnOnce(&Path) -> Result<(), String>,
     ) -> Result<()> {
-        let dir = path
-            .parent()
-            .ok_or_else(|| Error::internal(format!("no parent dir: {}", path.display())))?;
-        fs::create_dir_all(dir).map_err(|e| io_err("cannot create", dir, e))?;
-        let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-        let name = path
-            .file_name()
-            .map(|s| s.to_string_lossy().to_string())
-            .unwrap_or_default();
-        // Keep the real extension last: some writers (PNG) pick the format from it.
-        // The host tag lets cleanup on a shared cache tell whose pid it is (see `writer_alive`).
-        let tmp = dir.join(format!(
-            ".tmp-{}-{n}-h{}-{name}",
-            std::process::id(),
-            lockfile::host_tag()
-        ));
-        let result = (|| {
-            write(&tmp)
-                .map_err(|e| Error::internal(format!("cannot write {}: {e}", tmp.display())))?;
-            let f = fs::OpenOptions::new()
-                .write(true)
-                .open(&tmp)
-                .map_err(|e| io_err("cannot open", &tmp, e))?;
-            f.sync_all().map_err(|e| io_err("cannot fsync", &tmp, e))?;
-            drop(f);
-            fs::rename(&tmp, path).map_err(|e| io_err("cannot rename into", path, e))
-        })();
-        if result.is_err() {
-            let _ = fs::remove_file(&tmp);
-        } else if let Ok(d) = fs::File::open(dir) {
-            let _ = d.sync_all();
-        }
-        result
+        atomic::write_atomic_with(path, |tmp| {
+            write(tmp).map_err(|e| format!("cannot write {}: {e}", tmp.display()))
+        })
+        .map_err(Error::internal)
     }
 
     /// Encodes and writes one data file; returns the blake3 hex of the written bytes. Header and

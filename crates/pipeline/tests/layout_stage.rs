@@ -107,8 +107,8 @@ fn timed_fields_keep_runs_and_spreads() {
     let check = |name: &str, median: f64, spread: Option<f64>, runs: &Option<Vec<f64>>| {
         let runs = runs.as_ref().unwrap_or_else(|| panic!("{name}_runs"));
         assert_eq!(runs.len(), 3, "{name}");
-        assert_eq!(median, bvhlab_pipeline::stages::median(runs), "{name}");
-        assert_eq!(spread, bvhlab_pipeline::stages::spread(runs), "{name}");
+        assert_eq!(median, bvhlab_pipeline::stats::median(runs), "{name}");
+        assert_eq!(spread, bvhlab_pipeline::stats::spread(runs), "{name}");
         assert!(spread.is_some(), "{name}_spread");
     };
     check(
@@ -155,7 +155,7 @@ fn timed_fields_keep_runs_and_spreads() {
     for i in 0..3 {
         assert_eq!(ratios[i], t[i] / b[i]);
     }
-    assert_eq!(row.slowdown_spread, bvhlab_pipeline::stages::spread(ratios));
+    assert_eq!(row.slowdown_spread, bvhlab_pipeline::stats::spread(ratios));
     assert!(row.mrays_per_s_spread.is_some());
     // Stage runs are not paired: the total's spread is the sum of the stage ranges over the total.
     let range = |v: &[f64]| {

@@ -2,6 +2,7 @@
 //! method identity, flags (methods far worse than the best on a scene), scene-parameter sweeps
 //! (generated scenes differing in one numeric parameter) and the Morton-precision drop analysis of
 //! Riemersma 2024, section 3.2.4 (eq. 13 and 14).
+use bvhlab_pipeline::stats::min_max;
 use bvhlab_pipeline::ResultRow;
 use std::collections::BTreeMap;
 
@@ -61,7 +62,7 @@ pub fn total_build_range(r: &ResultRow) -> Option<(f64, f64)> {
             continue;
         }
         let runs = runs.as_ref().filter(|v| v.len() > 1)?;
-        let (a, b) = runs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
+        let (a, b) = min_max(runs.iter().copied());
         lo += a;
         hi += b;
         any = true;

@@ -2,7 +2,7 @@
 //!
 //! Columns are derived generically from the serde representation of `ResultRow`, so a field added to
 //! the row (an `Option`, per row.rs) shows up as a column without touching this file.
-use crate::fsutil::write_atomic_with;
+use bvhlab_pipeline::atomic::write_atomic_file;
 use bvhlab_pipeline::ResultRow;
 use polars::prelude::*;
 use serde::de::{Deserializer, IgnoredAny, MapAccess, Visitor};
@@ -108,7 +108,7 @@ fn json_to_string(v: &Value) -> String {
 }
 
 pub fn write_parquet(df: &mut DataFrame, path: &Path) -> Result<(), String> {
-    write_atomic_with(path, |f| {
+    write_atomic_file(path, |f| {
         ParquetWriter::new(f).finish(df).map(|_| ()).map_err(|e| e.to_string())
     })
 }
@@ -120,7 +120,7 @@ pub fn parquet_rows(path: &Path) -> Option<usize> {
 }
 
 pub fn write_csv(df: &mut DataFrame, path: &Path) -> Result<(), String> {
-    write_atomic_with(path, |f| {
+    write_atomic_file(path, |f| {
         CsvWriter::new(f).include_header(true).finish(df).map_err(|e| e.to_string())
     })
 }

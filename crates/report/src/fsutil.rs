@@ -1,23 +1,9 @@
-//! Small file helpers: write to a temporary sibling and rename, so a crashed or failed run never
-//! leaves a half-written file under the final name; file-name sanitizing.
+//! Small file helpers: removal of temporaries a killed writer left behind, copying through the
+//! pipeline's atomic write (`bvhlab_pipeline::atomic`), file-name sanitizing.
+use bvhlab_pipeline::atomic::write_atomic;
+use bvhlab_pipeline::lockfile::pid_alive;
 use std::collections::HashSet;
-use std::fs::File;
-use std::io::Write;
-use std::path::{Path, PathBuf};
-
-/// Temporary sibling that keeps the extension (plotters and image pick the format from it).
-pub fn tmp_path(path: &Path) -> PathBuf {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    path.with_file_name(format!(".tmp-{}-{name}", std::process::id()))
-}
-
-/// Whether process `pid` runs on this machine (Linux `/proc`; elsewhere assumed alive).
-fn pid_alive(pid: u32) -> bool {
-    if !Path::new("/proc/self").exists() {
-        return true;
-    }
-    Path::new(&format!("/proc/{pid}")).exists()
-}
+use std::path::Path;
 
 /// Removes the `.tmp-<pid>-*` files a killed writer left in `dir` and its immediate
 /// subdirectories (the report's plots/ and heatmaps/): nothing else would ever remove them. Files
@@ -43,37 +29,6 @@ pub fn remove_stale_temps(dir: &Path) -> usize {
         }
     }
     removed
-}
-
-pub fn commit(tmp: &Path, path: &Path) -> Result<(), String> {
-    std::fs::rename(tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(tmp);
-        format!("{}: cannot rename from {}: {e}", path.display(), tmp.display())
-    })
-}
-
-pub fn write_atomic_with(
-    path: &Path,
-    write: impl FnOnce(&mut File) -> Result<(), String>,
-) -> Result<(), String> {
-    let tmp = tmp_path(path);
-    let res = (|| {
-        let mut f = File::create(&tmp).map_err(|e| format!("{}: {e}", tmp.display()))?;
-        write(&mut f).map_err(|e| format!("{}: {e}", path.display()))?;
-        f.flush().map_err(|e| format!("{}: {e}", path.display()))?;
-        Ok(())
-    })();
-    match res {
-        Ok(()) => commit(&tmp, path),
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            Err(e)
-        }
-    }
-}
-
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), String> {
-    write_atomic_with(path, |f| f.write_all(bytes).map_err(|e| e.to_string()))
 }
 
 pub fn copy_atomic(from: &Path, to: &Path) -> Result<(), String> {

@@ -9,6 +9,7 @@ use crate::plots::labels;
 use crate::plots::pareto::pareto_front;
 use crate::plots::{color, err, fmt_num, Figure};
 use crate::sweeps::PlotFn;
+use bvhlab_pipeline::stats::min_max;
 use bvhlab_pipeline::ResultRow;
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
@@ -249,10 +250,7 @@ impl Metric {
             Metric::Slowdown => r.slowdown_runs.as_ref(),
             _ => None,
         }?;
-        let (lo, hi) = runs
-            .iter()
-            .filter(|v| v.is_finite())
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
+        let (lo, hi) = min_max(runs.iter().copied().filter(|v| v.is_finite()));
         (runs.len() > 1 && lo.is_finite() && hi.is_finite()).then_some((lo, hi))
     }
 
@@ -447,9 +445,7 @@ fn draw_marker<DB: DrawingBackend>(
 }
 
 fn range(vs: impl Iterator<Item = f64>, log_ratio: f64) -> Option<(f64, f64, bool)> {
-    let (lo, hi) = vs
-        .filter(|v| v.is_finite())
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    let (lo, hi) = min_max(vs.filter(|v| v.is_finite()));
     if !lo.is_finite() {
         return None;
     }

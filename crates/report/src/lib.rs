@@ -365,7 +365,7 @@ pub fn write_report_with(
         notices: format!("{}{}", incomplete_notice(&options.missing_chains), machines_notice(rows, &groups)),
     };
     let index = out_dir.join("index.html");
-    fsutil::write_atomic(&index, sections::render(&page).as_bytes())?;
+    bvhlab_pipeline::atomic::write_atomic(&index, sections::render(&page).as_bytes())?;
     Ok(index)
 }
 

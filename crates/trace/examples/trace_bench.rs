@@ -5,16 +5,12 @@
 //! image size), their shadow rays and random rays (thesis 4.4), each `runs` times on 1 thread and
 //! on all threads. One JSON line per ray set: median Mrays/s, mean steps and tests per ray, hit
 //! rate. With a PNG path, also writes the primary-ray traversal-step heat map (Bittner 2013 fig. 1).
+use bvhlab_geom::stats::median;
 use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_bvh::Bvh;
 use bvhlab_geom::Triangle;
 use bvhlab_trace::{heatmap, primary_rays, random_rays, shadow_rays, trace, Camera, Ray};
 use std::time::Instant;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
 
 /// Process CPU time (user + system) in seconds from /proc/self/stat (Linux), if readable. On a
 /// shared, oversubscribed machine wall time inflates; CPU time of a 1-thread run does not.
@@ -59,7 +55,7 @@ fn bench(
     } else {
         None
     };
-    (mr(median(wall)), cpu)
+    (mr(median(&wall)), cpu)
 }
 
 fn main() {
@@ -97,10 +93,7 @@ fn main() {
     let first = trace(&bvh, tris, &primary);
     let hit_t: Vec<f32> = first.hits.iter().map(|h| h.t).collect();
     let shadow = shadow_rays(&primary, &hit_t, cam.light(&bounds));
-    let radius = centers
-        .iter()
-        .map(|c| (*c - bounds.center()).length())
-        .fold(0.0, f32::max);
+    let radius = bounds.enclosing_radius(centers.iter().copied());
     let random = random_rays(&bounds, radius, n_rays, 1);
     let threads = rayon::current_num_threads();
     println!(
@@ -127,9 +120,12 @@ fn main() {
         );
     }
     if let Some(path) = args.get(4) {
-        if let Err(e) =
-            heatmap::write_heatmap_png(std::path::Path::new(path), &first.steps, side, side)
-        {
+        let rgb = heatmap::heatmap_rgb(&first.steps, side, side);
+        let written = rgb.and_then(|rgb| {
+            image::save_buffer(path, &rgb, side, side, image::ColorType::Rgb8)
+                .map_err(|e| format!("{path}: {e}"))
+        });
+        if let Err(e) = written {
             eprintln!("error: {e}");
             std::process::exit(1);
         }

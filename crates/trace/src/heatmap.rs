@@ -1,6 +1,5 @@
 //! Heat map of traversal steps per pixel, blue (0) to red (>= 100), like Bittner 2013 figure 1.
-use plotters::backend::{BitMapBackend, DrawingBackend};
-use std::path::Path;
+//! Returns pixels; the pipeline encodes and writes the PNG files (`bvhlab_pipeline::heatmap`).
 
 /// Step count at and above which a pixel is pure red (Bittner 2013, figure 1 (d)).
 pub const HEAT_MAX_STEPS: u32 = 100;
@@ -35,27 +34,4 @@ pub fn heatmap_rgb(steps: &[u32], width: u32, height: u32) -> Result<Vec<u8>, St
         ));
     }
     Ok(steps.iter().flat_map(|&s| heat_color(s)).collect())
-}
-
-/// Writes a `width x height` PNG; `steps` is row-major from the top-left pixel.
-pub fn write_heatmap_png(
-    path: &Path,
-    steps: &[u32],
-    width: u32,
-    height: u32,
-) -> Result<(), String> {
-    if width == 0 || height == 0 {
-        return Err(format!(
-            "heat map {}: empty image {width}x{height}",
-            path.display()
-        ));
-    }
-    let rgb = heatmap_rgb(steps, width, height)?;
-    let mut backend = BitMapBackend::new(path, (width, height));
-    backend
-        .blit_bitmap((0, 0), (width, height), &rgb)
-        .map_err(|e| format!("heat map {}: {e}", path.display()))?;
-    backend
-        .present()
-        .map_err(|e| format!("heat map {}: {e}", path.display()))
 }

@@ -133,22 +133,7 @@ impl RayBox {
     /// false, i.e. a miss.
     #[inline(always)]
     pub fn hit(&self, b: &Aabb, tmax: f32) -> Option<f32> {
-        #[inline(always)]
-        fn mn(a: f32, b: f32) -> f32 {
-            if a < b {
-                a
-            } else {
-                b
-            }
-        }
-        #[inline(always)]
-        fn mx(a: f32, b: f32) -> f32 {
-            if a > b {
-                a
-            } else {
-                b
-            }
-        }
+        use bvhlab_geom::aabb::{fmax as mx, fmin as mn};
         let (o, i) = (self.origin, self.inv_dir);
         let (mut x0, mut x1) = ((b.min.x - o.x) * i.x, (b.max.x - o.x) * i.x);
         let (mut y0, mut y1) = ((b.min.y - o.y) * i.y, (b.max.y - o.y) * i.y);

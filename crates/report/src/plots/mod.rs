@@ -7,7 +7,7 @@ pub mod pareto;
 pub mod reference;
 pub mod sweep;
 
-use crate::fsutil::{commit, tmp_path};
+use bvhlab_pipeline::atomic::write_atomic_with;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -44,23 +44,20 @@ pub fn render<F: Figure>(fig: &F, out_dir: &Path, stem: &str, title: &str) -> Re
     let mut rec = labels::Record::default();
     let res = catch_unwind(AssertUnwindSafe(|| -> Result<(), String> {
         labels::start();
-        let tmp = tmp_path(&png);
-        let drawn = (|| {
-            let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+        let drawn = write_atomic_with(&png, |tmp| {
+            let root = BitMapBackend::new(tmp, size).into_drawing_area();
             root.fill(&WHITE).map_err(err)?;
             fig.draw(&root)?;
             root.present().map_err(err)
-        })();
+        });
         rec = labels::take();
-        finish(drawn, &tmp, &png)?;
-        let tmp = tmp_path(&svg);
-        let drawn = (|| {
-            let root = SVGBackend::new(&tmp, size).into_drawing_area();
+        drawn?;
+        let r = write_atomic_with(&svg, |tmp| {
+            let root = SVGBackend::new(tmp, size).into_drawing_area();
             root.fill(&WHITE).map_err(err)?;
             fig.draw(&root)?;
             root.present().map_err(err)
-        })();
-        let r = finish(drawn, &tmp, &svg);
+        });
         labels::take();
         r
     }));
@@ -75,16 +72,6 @@ pub fn render<F: Figure>(fig: &F, out_dir: &Path, stem: &str, title: &str) -> Re
         }),
         Ok(Err(e)) => Err(format!("plot '{title}': {e}")),
         Err(_) => Err(format!("plot '{title}': plotters panicked (fonts missing?)")),
-    }
-}
-
-fn finish(drawn: Result<(), String>, tmp: &Path, path: &Path) -> Result<(), String> {
-    match drawn {
-        Ok(()) => commit(tmp, path),
-        Err(e) => {
-            let _ = std::fs::remove_file(tmp);
-            Err(format!("{}: {e}", path.display()))
-        }
     }
 }
 

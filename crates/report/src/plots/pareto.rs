@@ -1,6 +1,7 @@
 //! Build time against SAH cost, one point per (builder, parameters, compaction) of a scene, with the
 //! Pareto front (DEVELOPERS.md principle 1: chart speed against quality).
 use super::{color, err, labels, Figure};
+use bvhlab_pipeline::stats::min_max;
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -347,10 +348,6 @@ fn draw_key<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, key: &[String]) -
         labels::draw_at(area, &text, 12.0, at, whole)?;
     }
     Ok(())
-}
-
-fn min_max(vs: impl Iterator<Item = f64>) -> (f64, f64) {
-    vs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)))
 }
 
 #[cfg(test)]

@@ -2,6 +2,7 @@
 //! method, one panel per builder, like Riemersma 2024's performance-drop figures. Vertical markers
 //! show measured drops (solid) and predicted drops (dashed, Riemersma eq. 14).
 use super::{color, err, Figure};
+use bvhlab_pipeline::stats::min_max;
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -70,11 +71,7 @@ impl SweepFigure {
             .flat_map(|p| p.curves.iter())
             .flat_map(|c| c.points.iter())
             .map(|p| p.1);
-        let (lo, hi) = ys
-            .filter(|y| y.is_finite())
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| {
-                (a.min(y), b.max(y))
-            });
+        let (lo, hi) = min_max(ys.filter(|y| y.is_finite()));
         if !lo.is_finite() {
             return None;
         }
@@ -97,11 +94,7 @@ impl SweepFigure {
                 .flat_map(|c| c.points.iter().map(|p| p.0))
                 .chain(p.markers.iter().map(|m| m.x))
         });
-        let (lo, hi) = xs
-            .filter(|x| x.is_finite())
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
-                (a.min(x), b.max(x))
-            });
+        let (lo, hi) = min_max(xs.filter(|x| x.is_finite()));
         if !lo.is_finite() {
             return (0.0, 1.0);
         }
