@@ -2,9 +2,10 @@
 //! rows plus one figure type: per scene (and chain and ray set) bytes per triangle against trace
 //! time, slowdown and extra triangle tests, one curve per layout family with the Pareto front; the
 //! memory/chunk table (Kilian figures 4.16, 5.4, 6.3, 6.5), the speed/accuracy table, the findings
-//! table (Kilian's qualitative claims checked per scene) and the `layout=auto` choices.
+//! table (Kilian's qualitative claims checked per scene) and the `layout=auto` choices (the tables
+//! are written in `sections/layouts.rs`).
 use crate::analysis::{method_key, parse_params};
-use crate::html::{escape, Section};
+use crate::html::Section;
 use crate::plots::labels;
 use crate::plots::pareto::pareto_front;
 use crate::plots::{color, err, fmt_num, Figure};
@@ -15,7 +16,6 @@ use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::collections::BTreeMap;
-use std::fmt::Write;
 
 /// The floor of the noise band (see `beyond_noise`): two timings within this many percent are never
 /// told apart, however small their measured spreads (systematic run-to-run effects such as cache
@@ -60,7 +60,7 @@ pub fn kilian_bits_per_node(layout: &str, params: &BTreeMap<String, String>) -> 
 pub fn kilian_fill(layout: &str) -> Option<&'static str> {
     match layout {
         "octree_1bit" => Some("~30% (ch. 7, fig. 6.3)"),
-        "qbvh_chunks" => Some("&lt; 10% (5.2.3, fig. 5.4)"),
+        "qbvh_chunks" => Some("< 10% (5.2.3, fig. 5.4)"),
         _ => None,
     }
 }
@@ -1190,7 +1190,7 @@ fn fills(cases: &[Case]) -> Finding {
     Finding {
         id: "7",
         claim: "qbvh_chunks chunks are filled less than octree_1bit chunks".into(),
-        kilian: "6.3, fig. 6.3 (qbvh_chunks &lt; 10%, octree_1bit ~30%)".into(),
+        kilian: "6.3, fig. 6.3 (qbvh_chunks < 10%, octree_1bit ~30%)".into(),
         cases: out,
     }
 }
@@ -1229,253 +1229,15 @@ pub fn findings(rows: &[ResultRow]) -> Vec<Finding> {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Tables and section
-
-fn num(v: Option<f64>) -> String {
-    v.filter(|x| x.is_finite()).map(fmt_num).unwrap_or_default()
-}
-
-fn pct(v: Option<f64>) -> String {
-    v.filter(|x| x.is_finite()).map(|f| format!("{:.1}%", f * 100.0)).unwrap_or_default()
-}
-
-fn findings_table(fs: &[Finding]) -> String {
-    let mut h = format!(
-        "<h3>Findings: Kilian's claims on our data</h3>\n<p>Each claim checked per scene (and chain / ray set) from \
-         the rows of this experiment; times compare slowdowns against bvh2 timed alternately in the same run (else \
-         trace seconds). A time verdict needs the difference to exceed the measured noise: |a/b &minus; 1| &gt; \
-         max(spread<sub>a</sub> + spread<sub>b</sub>, {TIE_PERCENT}%), spread = (max &minus; min) / median over \
-         the runs (a stated limit has none); else \"within noise\" (also for a single run: noise not measured). \
-         \"tie\": exactly equal sizes or counts. \"not applicable\": a degenerate case (no triangles, or a \
-         structure of fewer than two nodes). Kilian's numbers are only those he states in the text (section \
-         given); ours are beside them.</p>\n<table><tr><th>#</th><th>claim</th><th>Kilian (stated)</th>\
-         <th>agrees</th><th>differs</th><th>within noise</th><th>tie</th><th>not applicable</th>\
-         <th>differing cases (our numbers)</th></tr>\n",
-    );
-    for f in fs {
-        let n = |v: Verdict| f.cases.iter().filter(|c| c.verdict == v).count();
-        let diff: Vec<String> = f
-            .cases
-            .iter()
-            .filter(|c| c.verdict == Verdict::Differs)
-            .map(|c| format!("{}: {}", escape(&c.case), escape(&c.numbers)))
-            .collect();
-        let cls = if n(Verdict::Differs) > 0 { " class=\"warn\"" } else { "" };
-        let _ = writeln!(
-            h,
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\"><span{cls}>{}</span></td>\
-             <td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td>{}</td></tr>",
-            f.id,
-            escape(&f.claim),
-            f.kilian,
-            n(Verdict::Agrees),
-            n(Verdict::Differs),
-            n(Verdict::WithinNoise),
-            n(Verdict::Tie),
-            n(Verdict::NotApplicable),
-            if f.cases.is_empty() { "no data for this claim".to_string() } else { diff.join("<br>") }
-        );
-    }
-    h.push_str("</table>\n<h4>Per case</h4>\n<table><tr><th>#</th><th>case</th><th>verdict</th><th>our numbers</th></tr>\n");
-    for f in fs {
-        for c in &f.cases {
-            let cls = if c.verdict == Verdict::Differs { " class=\"warn\"" } else { "" };
-            let _ = writeln!(
-                h,
-                "<tr><td>{}</td><td>{}</td><td><span{cls}>{}</span></td><td>{}</td></tr>",
-                f.id,
-                escape(&c.case),
-                c.verdict.word(),
-                escape(&c.numbers)
-            );
-        }
-    }
-    h.push_str("</table>\n");
-    h
-}
-
-fn memory_table(cs: &[Case]) -> String {
-    let mut h = String::from(
-        "<h3>Memory and chunks (Kilian fig. 4.16, 5.4, 6.3, 6.5)</h3>\n<p>Topology = what traversal reads at every \
-         step (nodes; chunks + node info), total adds the leaf arrays (Kilian 6.2). Bits/node = topology bits / \
-         layout nodes; Kilian's values are his best cases (every chunk full). Chunk fill = mean used slots / slots. \
-         Prim mult. = primitive references / triangles (octrees repeat primitives, fig. 6.5). Peak build = heap growth \
-         while building the layout.</p>\n<table><tr><th>scene</th><th>layout</th><th>params</th><th>topology B/tri</th>\
-         <th>total B/tri</th><th>bits/node</th><th>Kilian (stated) bits/node</th><th>nodes</th><th>chunks</th>\
-         <th>chunk fill</th><th>Kilian (stated) fill</th><th>prim mult.</th><th>peak build MB</th><th>layout s</th></tr>\n",
-    );
-    let mut seen: Vec<(String, String, String, BTreeMap<String, String>)> = Vec::new();
-    for c in cs {
-        for p in &c.points {
-            let key = (c.scene_name.clone(), c.chain.clone(), p.layout.clone(), p.params.clone());
-            if seen.contains(&key) {
-                continue;
-            }
-            seen.push(key);
-            let r = p.row;
-            let k = kilian_bits_per_node(&p.layout, &p.params)
-                .map(|(v, s)| format!("{} ({s})", fmt_num(v)))
-                .unwrap_or_default();
-            let fill_k = if r.chunks.is_some_and(|n| n > 0) { kilian_fill(&p.layout).unwrap_or("") } else { "" };
-            let mult = r.prim_refs.filter(|_| r.triangles > 0).map(|n| n as f64 / r.triangles as f64);
-            let _ = writeln!(
-                h,
-                "<tr><td>{}</td><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>\
-                 <td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td>{}</td>\
-                 <td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td></tr>",
-                escape(&c.scene_name),
-                escape(&p.layout),
-                escape(r.layout_params.as_deref().unwrap_or("")),
-                num(r.topology_bytes_per_triangle),
-                num(r.total_bytes_per_triangle),
-                num(r.topology_bits_per_node),
-                k,
-                r.layout_nodes.map(|n| n.to_string()).unwrap_or_default(),
-                r.chunks.filter(|&n| n > 0).map(|n| n.to_string()).unwrap_or_default(),
-                if r.chunks.is_some_and(|n| n > 0) { pct(r.chunk_fill) } else { String::new() },
-                fill_k,
-                num(mult),
-                num(r.peak_build_bytes.map(|b| b as f64 / 1e6)),
-                num(r.layout_seconds)
-            );
-        }
-    }
-    h.push_str("</table>\n");
-    h
-}
-
-fn speed_table(cs: &[Case]) -> String {
-    let mut h = String::from(
-        "<h3>Speed and accuracy</h3>\n<p>Trace s = median seconds of the ray set with the layout's own traversal; \
-         bvh2 s = the same rays through bvh2 of the same BVH, timed alternately in the same run; slowdown = their \
-         ratio (layout bvh2 is its own anchor: 1 exactly); spreads = (max &minus; min) / median over the runs (the \
-         slowdown's over the per-run ratios of the alternated pairs). Extra box hits / tests per ray: against the uncompressed structure of the same topology (qbvh_chunks vs \
-         bvh2, octree_1bit vs octree). Layout SAH = SAH cost with the boxes the traversal tests (quantized / implicit \
-         octant boxes); BVH SAH = the exact SAH cost of the chain's BVH.</p>\n<table><tr><th>case</th><th>layout</th>\
-         <th>trace s</th><th>trace spread</th><th>bvh2 s</th><th>slowdown</th><th>slowdown spread</th><th>steps/ray</th><th>tests/ray</th><th>extra box hits/ray</th>\
-         <th>extra tests/ray</th><th>layout SAH</th><th>BVH SAH</th><th>ratio</th></tr>\n",
-    );
-    for c in cs {
-        for p in &c.points {
-            let r = p.row;
-            let ratio = r.layout_sah_cost.filter(|_| r.sah_cost > 0.0).map(|l| l / r.sah_cost);
-            let _ = writeln!(
-                h,
-                "<tr><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>\
-                 <td class=\"n\">{}</td><td class=\"n\">{}</td>\
-                 <td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>\
-                 <td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td></tr>",
-                escape(&c.label),
-                escape(&p.label),
-                num(r.trace_seconds),
-                pct(r.trace_seconds_spread),
-                num(r.bvh2_trace_seconds),
-                num(r.slowdown),
-                pct(r.slowdown_spread),
-                num(r.traversal_steps_per_ray),
-                num(r.intersections_per_ray),
-                num(r.extra_box_hits_per_ray),
-                num(r.extra_tests_per_ray),
-                num(r.layout_sah_cost),
-                num(Some(r.sah_cost)),
-                num(ratio)
-            );
-        }
-    }
-    h.push_str("</table>\n");
-    h
-}
+// Section (its tables are written in sections/layouts.rs)
 
 /// An auto row over its limit whose measured slowdown is within noise of the limit (`at_most`):
 /// still flagged (the flag is the plain comparison), but the excess is not resolved.
-fn over_within_noise(r: &ResultRow) -> bool {
+pub(crate) fn over_within_noise(r: &ResultRow) -> bool {
     match (r.slowdown, r.auto_max_slowdown) {
         (Some(s), Some(m)) => at_most(Timed { value: s, spread: r.slowdown_spread }, m) == Verdict::WithinNoise,
         _ => false,
     }
-}
-
-fn auto_table(cs: &[Case]) -> String {
-    let autos: Vec<(&Case, &ResultRow)> = cs.iter().flat_map(|c| c.auto.iter().map(move |r| (c, *r))).collect();
-    if autos.is_empty() {
-        return String::new();
-    }
-    let mut h = String::from(
-        "<h3>layout=auto: the choice per scene</h3>\n<p>The smallest layout within the slowdown limit, from a search \
-         measured on a sample of random rays within a time budget (multiples of one bvh2 trace of them); the reason \
-         is the search's own account (layout_choice). Search slowdown = the chosen layout's slowdown in the search \
-         (its random-ray sample), the estimate the choice was made on; slowdown = this row's own measurement (its \
-         ray set, with its spread). A choice above its limit in either is marked over limit (\"within noise\" when \
-         the limit lies inside the measurement's noise band, see the findings); one cut short by the budget is \
-         marked too.</p>\n",
-    );
-    // Issue 15: choices above their limit went unflagged; they are listed before the table.
-    let over: Vec<String> = autos
-        .iter()
-        .filter(|(_, r)| r.auto_over_limit == Some(true))
-        .map(|(c, r)| {
-            format!(
-                "{}: {} {} at slowdown {} &gt; max_slowdown {} (search: {}){}",
-                escape(&c.label),
-                escape(r.layout.as_deref().unwrap_or("")),
-                escape(r.layout_params.as_deref().unwrap_or("")),
-                num(r.slowdown),
-                num(r.auto_max_slowdown),
-                num(r.auto_search_slowdown),
-                if over_within_noise(r) { ", within noise" } else { "" }
-            )
-        })
-        .collect();
-    if !over.is_empty() {
-        let _ = writeln!(
-            h,
-            "<p class=\"warn\"><b>Warning: {} layout=auto choice(s) exceed their max_slowdown in this report's own \
-             measurement</b> (the search judged them on its random-ray sample; other rays or machine load differ): {}</p>",
-            over.len(),
-            over.join("; ")
-        );
-    }
-    let cut = autos.iter().filter(|(_, r)| r.auto_budget_cut == Some(true)).count();
-    if cut > 0 {
-        let _ = writeln!(
-            h,
-            "<p class=\"warn\">{cut} layout=auto search(es) ran out of their time budget before measuring every \
-             candidate that could have won (raise auto:budget=B); their choice is the best of those measured.</p>"
-        );
-    }
-    h.push_str(
-        "<table><tr><th>case</th><th>chosen layout</th><th>params</th><th>topology B/tri</th><th>total B/tri</th>\
-         <th>search slowdown</th><th>slowdown</th><th>spread</th><th>max_slowdown</th><th>budget cut</th><th>reason</th></tr>\n",
-    );
-    for (c, r) in autos {
-        let flag = |b: Option<bool>, yes: &str| match b {
-            Some(true) => format!("<td class=\"warn\"><b>{yes}</b></td>"),
-            Some(false) => "<td>no</td>".to_string(),
-            None => "<td></td>".to_string(),
-        };
-        let slowdown = match (r.auto_over_limit == Some(true), over_within_noise(r)) {
-            (true, true) => format!("<td class=\"n warn\"><b>{} over limit (within noise)</b></td>", num(r.slowdown)),
-            (true, false) => format!("<td class=\"n warn\"><b>{} over limit</b></td>", num(r.slowdown)),
-            _ => format!("<td class=\"n\">{}</td>", num(r.slowdown)),
-        };
-        let _ = writeln!(
-            h,
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>\
-             {slowdown}<td class=\"n\">{}</td><td class=\"n\">{}</td>{}<td>{}</td></tr>",
-            escape(&c.label),
-            escape(r.layout.as_deref().unwrap_or("")),
-            escape(r.layout_params.as_deref().unwrap_or("")),
-            num(r.topology_bytes_per_triangle),
-            num(r.total_bytes_per_triangle),
-            num(r.auto_search_slowdown),
-            pct(r.slowdown_spread),
-            num(r.auto_max_slowdown),
-            flag(r.auto_budget_cut, "yes"),
-            escape(r.layout_choice.as_deref().unwrap_or(""))
-        );
-    }
-    h.push_str("</table>\n");
-    h
 }
 
 /// `None` when no row has a layout.
@@ -1519,10 +1281,7 @@ pub(crate) fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<
             ));
         }
     }
-    let mut extra = findings_table(&findings(rows));
-    extra.push_str(&memory_table(&cs));
-    extra.push_str(&speed_table(&cs));
-    extra.push_str(&auto_table(&cs));
+    let extra = crate::sections::layouts::tables(&findings(rows), &cs).into_string();
     Some(Section {
         id: "layouts",
         title: "Compressed layouts (Kilian 2021)".into(),

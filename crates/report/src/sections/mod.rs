@@ -7,6 +7,7 @@
 //! print, and a link to a section opens it (the script at the end).
 pub(crate) mod charts;
 pub mod heatmaps;
+pub(crate) mod layouts;
 pub mod reference;
 pub mod summary;
 pub mod tables;
