@@ -8,6 +8,7 @@
 pub(crate) mod charts;
 pub mod heatmaps;
 pub(crate) mod layouts;
+pub(crate) mod optimization;
 pub mod reference;
 pub mod summary;
 pub mod tables;

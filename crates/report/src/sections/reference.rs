@@ -47,7 +47,7 @@ pub fn section_body(p: &Page) -> Markup {
                         td { (c.source) } td { (c.metric) } td { (c.scene_name) } td { (c.thesis_scene) }
                         td { (c.abbrev) } td { (c.method) } td.n { (fmt_num(c.ours)) } td.n { (fmt_num(c.paper)) }
                         td.n { @if c.diff_percent.is_finite() { (format!("{:+.1}%", c.diff_percent)) } @else { "n/a" } }
-                        td { (maud::PreEscaped(crate::optimization::flag(c.diff_percent))) }
+                        td { (super::optimization::flag(c.diff_percent)) }
                     }
                 }
             }
