@@ -1,12 +1,12 @@
 //! The "scene-parameter sweeps" section: plots of metrics over generated scenes that differ in one
-//! numeric parameter, and for the outlier distance the drop table of Riemersma 2024 (eq. 13/14).
+//! numeric parameter, and for the outlier distance the drop table of Riemersma 2024 (eq. 13/14),
+//! written in `sections/sweeps.rs`.
 use crate::analysis::{self, Drop, Series, Sweep, DROP_THRESHOLD, SWEEP_METRICS};
-use crate::html::{escape, Section};
+use crate::html::Section;
 use crate::plots::sweep::{Curve, Marker, MarkerKind, SweepFigure, SweepPanel};
 use crate::plots::{fmt_num, Plot};
 use crate::DynFigure;
 use bvhlab_pipeline::ResultRow;
-use std::fmt::Write;
 
 pub type PlotFn<'a> = dyn FnMut(&dyn DynFigure, &str, &str, &mut Vec<String>) -> Option<Plot> + 'a;
 
@@ -118,7 +118,7 @@ pub fn figure(sweep: &Sweep, metric_label: &str, series: &[Series], drops: &[Dro
 pub fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<String>) -> Section {
     let sweeps = analysis::find_sweeps(rows);
     let mut plots = Vec::new();
-    let mut extra = String::new();
+    let mut tables = Vec::new();
     for sw in &sweeps {
         let d = analysis::shift_model(sw);
         let has_focus = !analysis::sweep_series(sw, rows, &SWEEP_METRICS[0]).is_empty();
@@ -143,7 +143,7 @@ pub fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<String>
             plots.extend(plot(&fig, &stem, &fig.caption, problems));
             if cost_metric {
                 if let Some(d) = d {
-                    drop_table(&mut extra, sw, metric.id, d, &drops);
+                    tables.push(crate::sections::sweeps::drop_table(sw, metric.id, d, &drops));
                 }
             }
         }
@@ -170,84 +170,7 @@ pub fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<String>
         title: "Scene-parameter sweeps".into(),
         intro,
         plots,
-        extra,
+        extra: maud::html! { @for t in &tables { (t) } }.into_string(),
         open: false,
     }
-}
-
-fn drop_table(h: &mut String, sw: &Sweep, metric: &str, d: f64, drops: &[Drop]) {
-    let last = sw.points.last().map(|p| fmt_num(p.0)).unwrap_or_default();
-    let none = format!("none up to {} = {last}", sw.param);
-    let opt = |v: Option<f64>| v.map(fmt_num).unwrap_or_else(|| none.clone());
-    let _ = writeln!(
-        h,
-        "<h3>Drops of {} over {} (measured vs predicted, d = {})</h3>",
-        escape(metric),
-        escape(&sw.title()),
-        fmt_num(d)
-    );
-    if drops.is_empty() {
-        h.push_str("<p>No method with an encode stage in this sweep.</p>\n");
-        return;
-    }
-    // Measured drops are sampled values: the true onset lies after the previous sample.
-    let step = sw
-        .points
-        .windows(2)
-        .map(|w| w[1].0 - w[0].0)
-        .fold(f64::INFINITY, f64::min);
-    if step.is_finite() {
-        let _ = writeln!(
-            h,
-            "<p>{} is sampled in steps of {}: a measured drop at {} = x means the cost first exceeds \
-             {:.0}% above its value at {} = {} somewhere in (x &minus; {}, x], so measured and predicted \
-             drops agree when they differ by less than one step.</p>",
-            escape(&sw.param),
-            fmt_num(step),
-            escape(&sw.param),
-            DROP_THRESHOLD * 100.0,
-            escape(&sw.param),
-            fmt_num(sw.points[0].0),
-            fmt_num(step)
-        );
-    }
-    h.push_str(
-        "<table><tr><th>builder</th><th>method</th><th>grid bits</th><th>measured drop</th>\
-         <th>same code without grid</th><th>its measured drop e_drop</th><th>move_d = grid_bits/d</th>\
-         <th>predicted drop</th><th>measured &minus; predicted</th></tr>\n",
-    );
-    for dr in drops {
-        let grid = dr.grid_bits > 0;
-        let mv = if grid {
-            fmt_num(analysis::move_d(2f64.powi(dr.grid_bits as i32), d))
-        } else {
-            String::new()
-        };
-        let delta = match (dr.measured, dr.predicted) {
-            (Some(m), Some(p)) => {
-                let x = m - p;
-                format!("{}{}", if x >= 0.0 { "+" } else { "" }, fmt_num(x))
-            }
-            _ => String::new(),
-        };
-        let _ = writeln!(
-            h,
-            "<tr><td>{}</td><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td>{}</td>\
-             <td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td></tr>",
-            escape(&dr.builder),
-            escape(&dr.method),
-            dr.grid_bits,
-            opt(dr.measured),
-            escape(dr.reference.as_deref().unwrap_or(if grid { "(not in this experiment)" } else { "" })),
-            if grid && dr.reference.is_some() { opt(dr.reference_drop) } else { String::new() },
-            mv,
-            if grid && dr.reference.is_some() {
-                dr.predicted.map(fmt_num).unwrap_or_else(|| "no drop of the reference".into())
-            } else {
-                String::new()
-            },
-            delta
-        );
-    }
-    h.push_str("</table>\n");
 }

@@ -11,6 +11,7 @@ pub(crate) mod layouts;
 pub(crate) mod optimization;
 pub mod reference;
 pub mod summary;
+pub(crate) mod sweeps;
 pub mod tables;
 
 use crate::html::href;
