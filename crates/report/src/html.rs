@@ -1,20 +1,5 @@
-//! HTML helpers shared by the section writers (the page itself is in `sections`).
+//! HTML helpers shared by the section writers (the page itself is built with maud in `sections`).
 use std::fmt::Write;
-
-pub fn escape(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&#39;"),
-            c => out.push(c),
-        }
-    }
-    out
-}
 
 /// Relative URL from a relative file path: percent-encode what is not URL-safe.
 pub fn href(path: &str) -> String {
@@ -55,8 +40,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn escapes() {
-        assert_eq!(escape("<a href=\"x\">&'</a>"), "&lt;a href=&quot;x&quot;&gt;&amp;&#39;&lt;/a&gt;");
+    fn hrefs() {
         assert_eq!(href("plots/a b#1.png"), "plots/a%20b%231.png");
     }
 

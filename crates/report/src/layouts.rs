@@ -1281,7 +1281,7 @@ pub(crate) fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<
             ));
         }
     }
-    let extra = crate::sections::layouts::tables(&findings(rows), &cs).into_string();
+    let extra = crate::sections::layouts::tables(&findings(rows), &cs);
     Some(Section {
         id: "layouts",
         title: "Compressed layouts (Kilian 2021)".into(),

@@ -82,77 +82,12 @@ fn group_by_machine<'a>(
     groups
 }
 
-fn machine_name(m: &str) -> &str {
+pub(crate) fn machine_name(m: &str) -> &str {
     if m.is_empty() {
         "unknown CPU"
     } else {
         m
     }
-}
-
-/// The notice about machines: one line when every timing comes from one CPU model, a warning box
-/// with the per-machine row counts and every mixed row otherwise.
-fn machines_notice(rows: &[ResultRow], groups: &[TimingGroup]) -> String {
-    use std::fmt::Write;
-    let mixed: Vec<&ResultRow> = rows.iter().filter(|r| r.machine_mixed).collect();
-    let mut h = String::new();
-    if groups.len() <= 1 && mixed.is_empty() {
-        if let Some(g) = groups.first() {
-            let _ = writeln!(h, "<p class=\"meta\">Timings measured on: {}.</p>", html::escape(machine_name(&g.machine)));
-        }
-        return h;
-    }
-    h.push_str("<div class=\"invalid-box\" id=\"machines\"><h2>Timings from more than one CPU model</h2>");
-    h.push_str(
-        "<p>These rows were computed on different machines (e.g. a sharded Slurm run). Timing plots, \
-         Pareto fronts and time ratios are drawn per CPU model (section titles say which); SAH costs, \
-         counts and bytes do not depend on the machine and merge all rows. Pin one model with \
-         <code>bvhlab slurm --constraint</code> (or <code>--partition</code>) to compare all timings.</p><ul>",
-    );
-    for g in groups {
-        let _ = write!(h, "<li>{}: {} rows</li>", html::escape(machine_name(&g.machine)), g.rows.len());
-    }
-    h.push_str("</ul>");
-    if !mixed.is_empty() {
-        let _ = write!(
-            h,
-            "<p class=\"warn\"><b>{} rows have stages timed on different CPU models</b> (e.g. built on one, \
-             traced on another): their trace times are left out of every timing plot and ratio; their build \
-             times still appear where the construction stages ran on one model.</p>\
-             <table><tr><th>scene</th><th>method</th><th>machines</th></tr>",
-            mixed.len()
-        );
-        for r in &mixed {
-            let _ = write!(
-                h,
-                "<tr class=\"invalid\"><td>{}</td><td>{}</td><td>{}</td></tr>",
-                html::escape(&r.scene_name),
-                html::escape(&r.method),
-                html::escape(&r.machine)
-            );
-        }
-        h.push_str("</table>");
-    }
-    h.push_str("</div>\n");
-    h
-}
-
-fn incomplete_notice(missing: &[String]) -> String {
-    use std::fmt::Write;
-    if missing.is_empty() {
-        return String::new();
-    }
-    let mut h = format!(
-        "<div class=\"invalid-box\" id=\"incomplete\"><h2>Incomplete: {} chains missing from the cache</h2>\
-         <p>Compute them (resubmit the same <code>bvhlab slurm</code> command, or run <code>bvhlab sweep</code>) \
-         and build the report again. Missing:</p><ul>",
-        missing.len()
-    );
-    for m in missing {
-        let _ = write!(h, "<li>{}</li>", html::escape(m));
-    }
-    h.push_str("</ul></div>\n");
-    h
 }
 
 /// Rows of the report already in `out_dir` (its results.parquet), if there is a readable one: a
@@ -315,7 +250,7 @@ pub fn write_report_with(
         ),
         Vec::new(),
     );
-    flags_section.extra = sections::tables::flags_table(&cost_flags).into_string();
+    flags_section.extra = sections::tables::flags_table(&cost_flags);
     sections.push(flags_section);
     let mut noise_section = Section::new(
         "noise",
@@ -330,7 +265,7 @@ pub fn write_report_with(
         ),
         Vec::new(),
     );
-    noise_section.extra = sections::tables::noise_table(rows).into_string();
+    noise_section.extra = sections::tables::noise_table(rows);
     sections.push(noise_section);
 
     // A re-run whose plots changed names (fewer scenes, small multiples) leaves the old files
@@ -362,7 +297,10 @@ pub fn write_report_with(
         reference,
         reference_plots,
         problems,
-        notices: format!("{}{}", incomplete_notice(&options.missing_chains), machines_notice(rows, &groups)),
+        notices: maud::html! {
+            (sections::notices::incomplete(&options.missing_chains))
+            (sections::notices::machines(rows, &groups))
+        },
     };
     let index = out_dir.join("index.html");
     bvhlab_pipeline::atomic::write_atomic(&index, sections::render(&page).as_bytes())?;

@@ -72,7 +72,7 @@ pub fn section(
             problems,
         ));
     }
-    let extra = crate::sections::optimization::tables(&groups, reference).into_string();
+    let extra = crate::sections::optimization::tables(&groups, reference);
     Some(Section {
         id: "optimization",
         title: "Optimization: convergence and cost".into(),

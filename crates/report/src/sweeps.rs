@@ -170,7 +170,7 @@ pub fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<String>
         title: "Scene-parameter sweeps".into(),
         intro,
         plots,
-        extra: maud::html! { @for t in &tables { (t) } }.into_string(),
+        extra: maud::html! { @for t in &tables { (t) } },
         open: false,
     }
 }

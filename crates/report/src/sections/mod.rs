@@ -1,6 +1,6 @@
 //! index.html, one writer per section (issue 16). The page is built with maud, which escapes every
-//! interpolated string by construction; sections written before it (layouts, optimization,
-//! sweeps) still hand in their tables as pre-escaped HTML in `Section::extra`.
+//! interpolated string by construction; no pre-escaped strings are passed around (`Section::extra`
+//! and `Page::notices` are `Markup`).
 //!
 //! The page opens with the summary (`summary.rs`, fits one 1400x900 screen); every other section
 //! is a `<details>` element, collapsed unless `open`, so the page stays short on screen and in
@@ -8,6 +8,7 @@
 pub(crate) mod charts;
 pub mod heatmaps;
 pub(crate) mod layouts;
+pub(crate) mod notices;
 pub(crate) mod optimization;
 pub mod reference;
 pub mod summary;
@@ -25,15 +26,15 @@ pub struct Section {
     pub title: String,
     pub intro: String,
     pub plots: Vec<Plot>,
-    /// Pre-escaped HTML after the plots (tables made by the section's builder).
-    pub extra: String,
+    /// After the plots (tables made by the section's builder).
+    pub extra: Markup,
     /// Shown expanded when the page opens (the Pareto fronts); all others start collapsed.
     pub open: bool,
 }
 
 impl Section {
     pub fn new(id: &'static str, title: impl Into<String>, intro: impl Into<String>, plots: Vec<Plot>) -> Section {
-        Section { id, title: title.into(), intro: intro.into(), plots, extra: String::new(), open: false }
+        Section { id, title: title.into(), intro: intro.into(), plots, extra: html! {}, open: false }
     }
 }
 
@@ -53,8 +54,8 @@ pub struct Page<'a> {
     pub reference: Option<Result<ReferenceReport, String>>,
     pub reference_plots: Vec<Plot>,
     pub problems: Vec<String>,
-    /// Pre-escaped HTML shown near the top: timings from several machines, an incomplete report.
-    pub notices: String,
+    /// Shown near the top: timings from several machines, an incomplete report.
+    pub notices: Markup,
 }
 
 const CSS: &str = "body{font-family:sans-serif;margin:1em 1.5em;color:#222;max-width:1600px}\
@@ -156,7 +157,7 @@ pub fn render(p: &Page) -> String {
                         ul { @for w in &precision { li.warn { (w) } } }
                     }))
                 }
-                (PreEscaped(&p.notices))
+                (p.notices)
                 @if !p.problems.is_empty() {
                     (section("problems", "Problems while making this report", true, html! {
                         ul { @for e in &p.problems { li.warn { (e) } } }
@@ -165,9 +166,9 @@ pub fn render(p: &Page) -> String {
                 @for s in &p.sections {
                     (section(s.id, &s.title, s.open, html! {
                         p { (s.intro) }
-                        @if s.plots.is_empty() && s.extra.is_empty() { p { "No data for this plot." } }
+                        @if s.plots.is_empty() && s.extra.0.is_empty() { p { "No data for this plot." } }
                         @for plot in &s.plots { (figure(plot)) }
-                        (PreEscaped(&s.extra))
+                        (s.extra)
                     }))
                 }
                 (heatmaps::gallery(&p.heatmaps))
