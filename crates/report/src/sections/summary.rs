@@ -5,7 +5,6 @@
 use crate::analysis::{method_key, total_build_seconds};
 use crate::plots::fmt_num;
 use crate::reference::{ReferenceReport, WITHIN_PERCENT};
-use crate::pareto_front;
 use bvhlab_pipeline::ResultRow;
 use maud::{html, Markup};
 
@@ -100,6 +99,51 @@ fn trace_kind(rows: &[&ResultRow]) -> Option<String> {
     kinds.iter().find(|(k, _)| k.starts_with("random")).or_else(|| kinds.iter().max_by_key(|(_, n)| *n)).map(|(k, _)| k.clone())
 }
 
+/// One scene's rows as the summary compares them: the builds (one row per build chain), those
+/// timed on the reference machine, and the rows traced with the front's ray set.
+struct ScenePick<'a> {
+    key: &'a str,
+    srows: Vec<&'a ResultRow>,
+    builds: Vec<&'a ResultRow>,
+    focus: bool,
+    timed: Vec<&'a ResultRow>,
+    rays: Option<String>,
+    traced: Vec<&'a ResultRow>,
+}
+
+/// Points of every scene as a DataFrame (`scene`, `id` = index into that scene's list, `x`, `y`)
+/// and their per-scene Pareto fronts computed on it (`frame::front_ids`); a scene without a front
+/// point gets an empty list.
+fn scene_fronts<'a>(
+    picks: &[ScenePick<'a>],
+    list: impl for<'p> Fn(&'p ScenePick<'a>) -> &'p [&'a ResultRow],
+    xy: impl Fn(&ScenePick<'a>, &ResultRow) -> (f64, f64),
+) -> Vec<Vec<usize>> {
+    let (mut scene, mut id, mut x, mut y) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for p in picks {
+        for (i, r) in list(p).iter().enumerate() {
+            let (px, py) = xy(p, r);
+            scene.push(p.key);
+            id.push(i as u32);
+            x.push(px);
+            y.push(py);
+        }
+    }
+    let fronts = polars::df!("scene" => scene, "id" => id, "x" => x, "y" => y)
+        .and_then(|df| crate::frame::front_ids(&df, "scene", "id", "x", "y"))
+        .unwrap_or_else(|e| panic!("Pareto fronts on the results frame: {e}"));
+    picks
+        .iter()
+        .map(|p| {
+            fronts
+                .iter()
+                .find(|(s, _)| s == p.key)
+                .map(|(_, ids)| ids.iter().map(|&i| i as usize).collect())
+                .unwrap_or_default()
+        })
+        .collect()
+}
+
 /// One line per scene. Timings are compared only within `machine` (the first CPU model of the
 /// rows; with several, the machines notice says so).
 pub fn scene_lines(rows: &[ResultRow]) -> Vec<SceneLine> {
@@ -110,7 +154,7 @@ pub fn scene_lines(rows: &[ResultRow]) -> Vec<SceneLine> {
             scenes.push(&r.scene);
         }
     }
-    scenes
+    let picks: Vec<ScenePick> = scenes
         .iter()
         .map(|s| {
             let srows: Vec<&ResultRow> = rows.iter().filter(|r| r.scene == *s && r.valid).collect();
@@ -121,36 +165,47 @@ pub fn scene_lines(rows: &[ResultRow]) -> Vec<SceneLine> {
                 }
             }
             let focus = builds.iter().any(|r| r.focus_sah_cost.is_some_and(f64::is_finite));
-            let cost = |r: &ResultRow| if focus { r.focus_sah_cost } else { Some(r.sah_cost) };
             let timed: Vec<&ResultRow> = builds.iter().copied().filter(|r| r.build_machine == machine).collect();
-            let pts: Vec<(f64, f64)> =
-                timed.iter().map(|r| (total_build_seconds(r), cost(r).unwrap_or(f64::NAN))).collect();
-            let build_front = pareto_front(&pts).into_iter().map(|i| build_label(timed[i]).to_string()).collect();
             let rays = trace_kind(&srows);
             let traced: Vec<&ResultRow> = srows
                 .iter()
                 .copied()
                 .filter(|r| r.rays_kind == rays && r.trace_seconds.is_some() && !r.machine_mixed && r.machine == machine)
                 .collect();
-            let mem = |r: &ResultRow| r.total_bytes_per_triangle.unwrap_or(r.bytes_per_triangle);
-            let tpts: Vec<(f64, f64)> = traced.iter().map(|r| (mem(r), r.trace_seconds.unwrap_or(f64::NAN))).collect();
-            let short = short_names(&traced);
-            let trace_front = pareto_front(&tpts).into_iter().map(|i| short[i].clone()).collect();
+            ScenePick { key: *s, srows, builds, focus, timed, rays, traced }
+        })
+        .collect();
+    let cost_of = |focus: bool, r: &ResultRow| if focus { r.focus_sah_cost } else { Some(r.sah_cost) };
+    let mem = |r: &ResultRow| r.total_bytes_per_triangle.unwrap_or(r.bytes_per_triangle);
+    let build_fronts = scene_fronts(&picks, |p| &p.timed, |p, r| {
+        (total_build_seconds(r), cost_of(p.focus, r).unwrap_or(f64::NAN))
+    });
+    let trace_fronts = scene_fronts(&picks, |p| &p.traced, |_, r| (mem(r), r.trace_seconds.unwrap_or(f64::NAN)));
+    picks
+        .iter()
+        .zip(build_fronts.into_iter().zip(trace_fronts))
+        .map(|(p, (bf, tf))| {
+            let s = p.key;
+            let focus = p.focus;
+            let cost = |r: &ResultRow| cost_of(focus, r);
+            let build_front = bf.into_iter().map(|i| build_label(p.timed[i]).to_string()).collect();
+            let short = short_names(&p.traced);
+            let trace_front = tf.into_iter().map(|i| short[i].clone()).collect();
             let short_of = |r: &ResultRow| {
-                let i = traced.iter().position(|q| std::ptr::eq(*q, r)).unwrap_or(0);
+                let i = p.traced.iter().position(|q| std::ptr::eq(*q, r)).unwrap_or(0);
                 short.get(i).cloned().unwrap_or_default()
             };
             SceneLine {
-                scene: srows.first().map(|r| r.scene_name.clone()).unwrap_or_else(|| s.to_string()),
+                scene: p.srows.first().map(|r| r.scene_name.clone()).unwrap_or_else(|| s.to_string()),
                 triangles: rows.iter().find(|r| r.scene == *s).map(|r| r.triangles).unwrap_or(0),
                 cost_label: if focus { "focus SAH" } else { "SAH" },
                 build_front,
                 trace_front,
-                rays: rays.filter(|_| !traced.is_empty()),
-                best_cost: best(&builds, |r| build_label(r).to_string(), cost, false),
-                fastest_build: best(&timed, |r| build_label(r).to_string(), |r| Some(total_build_seconds(r)), false),
-                fastest_trace: best(&traced, short_of, |r| r.mrays_per_s, true),
-                smallest: best(&traced, short_of, |r| Some(mem(r)), false),
+                rays: p.rays.clone().filter(|_| !p.traced.is_empty()),
+                best_cost: best(&p.builds, |r| build_label(r).to_string(), cost, false),
+                fastest_build: best(&p.timed, |r| build_label(r).to_string(), |r| Some(total_build_seconds(r)), false),
+                fastest_trace: best(&p.traced, short_of, |r| r.mrays_per_s, true),
+                smallest: best(&p.traced, short_of, |r| Some(mem(r)), false),
             }
         })
         .collect()
