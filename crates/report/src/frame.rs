@@ -178,6 +178,31 @@ pub fn front_ids(df: &DataFrame, group: &str, id: &str, x: &str, y: &str) -> Pol
     Ok(out)
 }
 
+/// Per-group best row: for every value of `group` (in order of first appearance), the `id` and
+/// value of the row with the lowest (`max`: highest) finite `v`, the first such row on a tie.
+/// Polars operations: filter the finite rows, group by `group`, per group a stable sort by `v`
+/// and the first row.
+pub fn group_best(df: &DataFrame, group: &str, id: &str, v: &str, max: bool) -> PolarsResult<Vec<(String, u32, f64)>> {
+    let finite = df.column(v)?.is_finite()?.fill_null_with_values(false)?;
+    let vals = df.filter(&finite)?;
+    if vals.height() == 0 {
+        return Ok(Vec::new());
+    }
+    let col = v.to_string();
+    let opts = SortMultipleOptions::default().with_order_descending(max).with_maintain_order(true);
+    let best = vals.group_by_stable([group])?.apply(move |g| Ok(g.sort([col.as_str()], opts.clone())?.head(Some(1))))?;
+    let groups = best.column(group)?.as_materialized_series().cast(&DataType::String)?;
+    let ids = best.column(id)?.as_materialized_series().cast(&DataType::UInt32)?;
+    let vs = best.column(v)?.as_materialized_series().cast(&DataType::Float64)?;
+    Ok(groups
+        .str()?
+        .iter()
+        .zip(ids.u32()?.iter())
+        .zip(vs.f64()?.iter())
+        .map(|((g, i), x)| (g.unwrap_or_default().to_string(), i.unwrap_or_default(), x.unwrap_or(f64::NAN)))
+        .collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -233,5 +258,17 @@ mod tests {
             want.sort_by_key(|(g, _)| (0..n).find(|&i| scenes[i] == g && pts[i].0.is_finite() && pts[i].1.is_finite()));
             assert_eq!(got, want, "round {round}: {scenes:?} {pts:?}");
         }
+    }
+
+    /// `group_best` picks what `Iterator::min_by` over the finite values picks (the first on a tie).
+    #[test]
+    fn group_best_matches_min_by() {
+        let scenes = ["a", "b", "a", "a", "b", "c"];
+        let pts = [(2.0, 0.0), (f64::NAN, 0.0), (1.0, 0.0), (1.0, 0.0), (3.0, 0.0), (f64::INFINITY, 0.0)];
+        let df = frame(&scenes, &pts);
+        let lo = group_best(&df, "scene", "id", "x", false).unwrap();
+        assert_eq!(lo, vec![("a".to_string(), 2, 1.0), ("b".to_string(), 4, 3.0)]);
+        let hi = group_best(&df, "scene", "id", "x", true).unwrap();
+        assert_eq!(hi, vec![("a".to_string(), 0, 2.0), ("b".to_string(), 4, 3.0)]);
     }
 }

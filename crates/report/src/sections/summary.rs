@@ -65,11 +65,29 @@ struct Best {
     value: f64,
 }
 
-fn best(rows: &[&ResultRow], name: impl Fn(&ResultRow) -> String, v: impl Fn(&ResultRow) -> Option<f64>, max: bool) -> Option<Best> {
-    rows.iter()
-        .filter_map(|r| v(r).filter(|x| x.is_finite()).map(|x| (*r, x)))
-        .min_by(|a, b| if max { b.1.total_cmp(&a.1) } else { a.1.total_cmp(&b.1) })
-        .map(|(r, x)| Best { name: name(r), value: x })
+/// Per scene, the best of `list` by `value` (lowest, or highest with `max`), computed on a DataFrame
+/// (`scene`, `id`, `v`) with `frame::group_best`: the index into the scene's list and the value.
+fn scene_bests<'a>(
+    picks: &[ScenePick<'a>],
+    list: impl for<'p> Fn(&'p ScenePick<'a>) -> &'p [&'a ResultRow],
+    value: impl Fn(&ScenePick<'a>, &ResultRow) -> Option<f64>,
+    max: bool,
+) -> Vec<Option<(usize, f64)>> {
+    let (mut scene, mut id, mut v) = (Vec::new(), Vec::new(), Vec::new());
+    for p in picks {
+        for (i, r) in list(p).iter().enumerate() {
+            scene.push(p.key);
+            id.push(i as u32);
+            v.push(value(p, r).unwrap_or(f64::NAN));
+        }
+    }
+    let bests = polars::df!("scene" => scene, "id" => id, "v" => v)
+        .and_then(|df| crate::frame::group_best(&df, "scene", "id", "v", max))
+        .unwrap_or_else(|e| panic!("best per scene on the results frame: {e}"));
+    picks
+        .iter()
+        .map(|p| bests.iter().find(|(s, _, _)| s == p.key).map(|&(_, i, x)| (i as usize, x)))
+        .collect()
 }
 
 pub struct SceneLine {
@@ -181,20 +199,23 @@ pub fn scene_lines(rows: &[ResultRow]) -> Vec<SceneLine> {
         (total_build_seconds(r), cost_of(p.focus, r).unwrap_or(f64::NAN))
     });
     let trace_fronts = scene_fronts(&picks, |p| &p.traced, |_, r| (mem(r), r.trace_seconds.unwrap_or(f64::NAN)));
+    let best_costs = scene_bests(&picks, |p| &p.builds, |p, r| cost_of(p.focus, r), false);
+    let fastest_builds = scene_bests(&picks, |p| &p.timed, |_, r| Some(total_build_seconds(r)), false);
+    let fastest_traces = scene_bests(&picks, |p| &p.traced, |_, r| r.mrays_per_s, true);
+    let smallests = scene_bests(&picks, |p| &p.traced, |_, r| Some(mem(r)), false);
     picks
         .iter()
         .zip(build_fronts.into_iter().zip(trace_fronts))
-        .map(|(p, (bf, tf))| {
+        .enumerate()
+        .map(|(k, (p, (bf, tf)))| {
             let s = p.key;
             let focus = p.focus;
-            let cost = |r: &ResultRow| cost_of(focus, r);
             let build_front = bf.into_iter().map(|i| build_label(p.timed[i]).to_string()).collect();
             let short = short_names(&p.traced);
             let trace_front = tf.into_iter().map(|i| short[i].clone()).collect();
-            let short_of = |r: &ResultRow| {
-                let i = p.traced.iter().position(|q| std::ptr::eq(*q, r)).unwrap_or(0);
-                short.get(i).cloned().unwrap_or_default()
-            };
+            let named = |b: Option<(usize, f64)>, name: &dyn Fn(usize) -> String| b.map(|(i, value)| Best { name: name(i), value });
+            let build_name = |list: &[&ResultRow], i: usize| build_label(list[i]).to_string();
+            let short_of = |i: usize| short.get(i).cloned().unwrap_or_default();
             SceneLine {
                 scene: p.srows.first().map(|r| r.scene_name.clone()).unwrap_or_else(|| s.to_string()),
                 triangles: rows.iter().find(|r| r.scene == *s).map(|r| r.triangles).unwrap_or(0),
@@ -202,10 +223,10 @@ pub fn scene_lines(rows: &[ResultRow]) -> Vec<SceneLine> {
                 build_front,
                 trace_front,
                 rays: p.rays.clone().filter(|_| !p.traced.is_empty()),
-                best_cost: best(&p.builds, |r| build_label(r).to_string(), cost, false),
-                fastest_build: best(&p.timed, |r| build_label(r).to_string(), |r| Some(total_build_seconds(r)), false),
-                fastest_trace: best(&p.traced, short_of, |r| r.mrays_per_s, true),
-                smallest: best(&p.traced, short_of, |r| Some(mem(r)), false),
+                best_cost: named(best_costs[k], &|i| build_name(&p.builds, i)),
+                fastest_build: named(fastest_builds[k], &|i| build_name(&p.timed, i)),
+                fastest_trace: named(fastest_traces[k], &short_of),
+                smallest: named(smallests[k], &short_of),
             }
         })
         .collect()
