@@ -2,7 +2,7 @@
 //! bottom-up builders, the encode stage's sorted codes). Also what the BVH-producing stages share
 //! (build, optimize, compact): their artifact, the timed repeats with the determinism check, and
 //! the final BVH of a chain.
-use super::chain::Plan;
+use super::chain::{method_version, Plan};
 use super::compact::Compact;
 use super::encode::Encode;
 use super::load::Load;
@@ -21,6 +21,7 @@ use std::time::Instant;
 ///    "centroids too close" threshold relative to the node box, PLOC/AAC distances of boxes
 ///    prescaled by a power of two; the SAH leaf test splits on equal costs (as the compaction
 ///    keeps such subtrees).
+/// A change of one builder bumps that builder's own version (`BuilderInfo::version`) instead.
 pub const BUILD_VERSION: u32 = 3;
 
 /// Summary of a BVH-producing stage (`build`, `compact`): metrics, validity, hash and timings.
@@ -122,6 +123,7 @@ impl Stage for Build {
         let mut p = plan.resolved.key_params();
         p.insert("builder".into(), plan.resolved.builder.clone());
         p.insert("repeat".into(), plan.spec.repeat.to_string());
+        method_version(&mut p, rt.registry.get(&plan.resolved.builder)?.version);
         let mut inputs = vec![("load", plan.need("load")?.key)];
         if let Some(e) = plan.node("encode") {
             inputs.push(("encode", e.key));

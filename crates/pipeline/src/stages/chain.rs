@@ -8,7 +8,7 @@ use super::build::{Build, BUILD_VERSION, BVH_STAGES};
 use super::compact::{check_compact, Compact, COMPACT_VERSION};
 use super::encode::{Encode, ENCODE_VERSION};
 use super::focus::{Focus, FOCUS_VERSION};
-use super::layout::{LayoutRequest, LayoutStage, AUTO_BUDGET, LAYOUT_VERSION};
+use super::layout::{LayoutRequest, LayoutStage, AUTO_BUDGET, LAYOUT_VERSION, LAYOUT_VERSIONS};
 use super::load::{precision_warning, Load, LOAD_VERSION};
 use super::measure::{paired_ratios, Measure, MEASURE_VERSION};
 use super::optimize::{optimize_info, Optimize, OPTIMIZE_VERSION};
@@ -34,6 +34,8 @@ pub struct Versions {
     pub measure: u32,
     pub focus: u32,
     pub layout: u32,
+    /// Per-layout versions (`LAYOUT_VERSIONS`, the layout stage's `method_version`).
+    pub layouts: &'static [(&'static str, u32)],
 }
 
 impl Default for Versions {
@@ -47,6 +49,7 @@ impl Default for Versions {
             measure: MEASURE_VERSION,
             focus: FOCUS_VERSION,
             layout: LAYOUT_VERSION,
+            layouts: &LAYOUT_VERSIONS,
         }
     }
 }
@@ -153,6 +156,16 @@ pub(crate) fn cost_params(cost: CostParams) -> [(String, String); 2] {
         param("c_t", fmt_f32(cost.c_t)),
         param("c_i", fmt_f32(cost.c_i)),
     ]
+}
+
+/// A method's own version (builder, encoder, optimizer, layout) in its stage's key parameters.
+/// Version 1, every method's first, adds nothing: keys written before methods had versions stay
+/// valid. From 2 on the key has `method_version`, so bumping one method recomputes its nodes and
+/// what is downstream of them, and nothing else.
+pub(crate) fn method_version(params: &mut BTreeMap<String, String>, version: u32) {
+    if version != 1 {
+        params.insert("method_version".into(), version.to_string());
+    }
 }
 
 /// The summary of `S` if the chain has that stage.

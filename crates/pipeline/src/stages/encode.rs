@@ -1,6 +1,6 @@
 //! The encode stage: Morton / EMC codes of the primitives and their sorted order (thesis 2.3.4,
 //! 3.7.1; Riemersma 2024), for the builders that take codes (lbvh, aac, ploc).
-use super::chain::Plan;
+use super::chain::{method_version, Plan};
 use super::load::Load;
 use crate::error::{Error, Result};
 use crate::run::{secs, Files, Node, Runner, Stage, Timing};
@@ -48,6 +48,7 @@ impl Stage for Encode {
         let mut p = e.params.clone();
         p.insert("encoder".into(), e.encoder.clone());
         p.insert("repeat".into(), plan.spec.repeat.to_string());
+        method_version(&mut p, rt.registry.encoder(&e.encoder)?.version);
         let inputs = vec![("load", plan.need("load")?.key)];
         Ok(Some(Node::new(Self::NAME, rt.versions.encode, p, inputs)))
     }

@@ -3,7 +3,7 @@
 //! or `auto`, the smallest layout within a slowdown limit (the search is in `auto.rs`).
 use super::auto::auto_search;
 use super::build::final_bvh;
-use super::chain::{cost_params, param, Plan};
+use super::chain::{cost_params, method_version, param, Plan};
 use super::load::Load;
 use crate::error::{Error, Result};
 use crate::run::{secs, Files, Node, Runner, Stage, Timing};
@@ -16,7 +16,27 @@ use std::time::Instant;
 
 /// 3: layout names `qbvh` -> `qbvh_chunks`, `octree1` -> `octree_1bit` (issue 17); an `auto`
 ///    artifact records the chosen candidate by name. Layout contents are unchanged.
+/// A change of one layout bumps that layout's own version (`LAYOUT_VERSIONS`).
 pub const LAYOUT_VERSION: u32 = 3;
+
+/// Per-layout implementation versions (every layout of `bvhlab_layout::LAYOUTS`): bump one when
+/// its build or traversal changes what it produces; its layout nodes get new keys, and so do the
+/// `auto` nodes (which may choose it), nothing else. The runner reads them from `Versions::layouts`
+/// (injectable, like the stage versions).
+pub const LAYOUT_VERSIONS: [(&str, u32); 4] = [
+    ("bvh2", 1),
+    ("qbvh_chunks", 1),
+    ("octree", 1),
+    ("octree_1bit", 1),
+];
+
+/// The version of layout `name` in `versions` (`LAYOUT_VERSIONS`; 1 for a name not listed).
+pub fn layout_version(versions: &[(&str, u32)], name: &str) -> u32 {
+    versions
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map_or(1, |(_, v)| *v)
+}
 
 /// A layout request: a layout with its parameters, or the `auto` search (Kilian 2021 layouts; the
 /// chosen one then behaves as if it had been given).
@@ -243,6 +263,7 @@ impl Stage for LayoutStage {
             LayoutRequest::Fixed(l) => {
                 let mut p = l.params.clone();
                 p.insert("layout".into(), l.name.clone());
+                method_version(&mut p, layout_version(rt.versions.layouts, &l.name));
                 // Octrees are built from the triangles alone: keyed by the scene, so every
                 // builder's chain shares one octree node.
                 let inputs = if bvhlab_layout::uses_bvh(&l.name) {
@@ -254,7 +275,7 @@ impl Stage for LayoutStage {
             }
             LayoutRequest::Auto(a) => {
                 let candidates = auto_candidates();
-                let p: BTreeMap<String, String> = [
+                let mut p: BTreeMap<String, String> = [
                     param("layout", "auto"),
                     param("max_slowdown", a.max_slowdown),
                     param("rays", a.rays),
@@ -264,6 +285,19 @@ impl Stage for LayoutStage {
                     param("candidates", candidates.join(";")),
                 ]
                 .into();
+                // Versions of the candidate layouts past their first (none: the key as before).
+                let bumped: Vec<String> = rt
+                    .versions
+                    .layouts
+                    .iter()
+                    .filter(|(n, v)| {
+                        *v != 1 && candidates.iter().any(|c| c.split(':').next() == Some(*n))
+                    })
+                    .map(|(n, v)| format!("{n}={v}"))
+                    .collect();
+                if !bumped.is_empty() {
+                    p.insert("method_versions".into(), bumped.join(","));
+                }
                 (p, vec![load, fin])
             }
         };
@@ -430,5 +464,16 @@ mod tests {
                 "{c}"
             );
         }
+    }
+
+    #[test]
+    fn every_layout_has_a_version() {
+        for name in bvhlab_layout::LAYOUTS {
+            assert!(
+                LAYOUT_VERSIONS.iter().any(|(n, v)| *n == name && *v >= 1),
+                "{name}"
+            );
+        }
+        assert_eq!(LAYOUT_VERSIONS.len(), bvhlab_layout::LAYOUTS.len());
     }
 }

@@ -1,13 +1,14 @@
 //! The optimize stage: an optimizer of the registry (ibo, Kensler rotations) on the built BVH,
 //! before the compaction (Bittner 2013 3.6). Keeps the pass-by-pass trace beside the BVH.
 use super::build::{repeat_bvh, Build, BvhArtifact, BvhSummary};
-use super::chain::{cost_params, Plan};
+use super::chain::{cost_params, method_version, Plan};
 use super::load::Load;
 use crate::error::{Error, Result};
 use crate::run::{Files, Node, Runner, Stage, Timing};
 use serde::{Deserialize, Serialize};
 
 /// 2: f64 areas in the insertion search and the measures (issue 15).
+/// A change of one optimizer bumps that optimizer's own version (`OptimizerInfo::version`).
 pub const OPTIMIZE_VERSION: u32 = 2;
 
 /// What the optimize stage keeps beside its BVH (`optimize/<key>.opt`): the pass-by-pass trace the
@@ -38,6 +39,7 @@ impl Stage for Optimize {
         p.insert("optimizer".into(), o.optimizer.clone());
         p.extend(cost_params(o.cost));
         p.insert("repeat".into(), plan.spec.repeat.to_string());
+        method_version(&mut p, rt.registry.optimizer(&o.optimizer)?.version);
         let inputs = vec![("build", plan.need("build")?.key)];
         Ok(Some(Node::new(Self::NAME, rt.versions.optimize, p, inputs)))
     }
