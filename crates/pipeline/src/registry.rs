@@ -159,6 +159,10 @@ pub type LabelFn = fn(&Resolved) -> String;
 #[derive(Clone)]
 pub struct BuilderInfo {
     pub name: &'static str,
+    /// Implementation version: bump it when a change of this method changes what it produces.
+    /// Part of its stage's key from 2 on (`method_version`), so only its nodes (and what is
+    /// downstream of them) are recomputed.
+    pub version: u32,
     pub about: &'static str,
     pub params: Vec<ParamSpec>,
     pub run: BuildFn,
@@ -183,6 +187,7 @@ impl BuilderInfo {
     ) -> BuilderInfo {
         BuilderInfo {
             name,
+            version: 1,
             about,
             params,
             run,
@@ -222,6 +227,8 @@ impl BuilderInfo {
 #[derive(Clone)]
 pub struct EncoderInfo {
     pub name: &'static str,
+    /// Implementation version, as `BuilderInfo::version`.
+    pub version: u32,
     pub about: &'static str,
     pub scheme: Scheme,
     pub params: Vec<ParamSpec>,
@@ -411,6 +418,8 @@ pub type OptimizeFn = fn(&Bvh, &ResolvedOptimizer) -> bvhlab_opt::Optimized;
 #[derive(Clone)]
 pub struct OptimizerInfo {
     pub name: &'static str,
+    /// Implementation version, as `BuilderInfo::version`.
+    pub version: u32,
     pub about: &'static str,
     pub params: Vec<ParamSpec>,
     pub run: OptimizeFn,
@@ -610,6 +619,7 @@ impl Registry {
         vec![
             OptimizerInfo {
                 name: "ibo",
+                version: 1,
                 about: "insertion-based optimization: remove a node's children, reinsert each where the cost grows \
                         least (Bittner et al. 2013; thesis 3.4)",
                 params: vec![
@@ -674,6 +684,7 @@ impl Registry {
             },
             OptimizerInfo {
                 name: "kensler-hc",
+                version: 1,
                 about: "tree rotations, hill climbing: apply the best improving rotation at each node until a pass \
                         finds none (Kensler 2008)",
                 params: vec![MAX_PASSES, MAX_SECONDS, BUDGET, KEEP_BEST, SEED],
@@ -682,6 +693,7 @@ impl Registry {
             },
             OptimizerInfo {
                 name: "kensler-sa",
+                version: 1,
                 about: "tree rotations, simulated annealing (Kensler 2008); capped by max_passes / max_seconds",
                 params: vec![
                     ParamSpec {
@@ -816,6 +828,7 @@ impl Registry {
             .with_label(bonsai_label),
             BuilderInfo {
                 name: "incremental",
+                version: 1,
                 about: "insertion of primitives in input order with branch-and-bound search and an optimization pass \
                         per batch (Bittner et al. 2015; thesis 3.5.1); one primitive per leaf: add compact = \"collapse\"",
                 params: vec![
@@ -857,6 +870,7 @@ impl Registry {
             },
             BuilderInfo {
                 name: "lbvh",
+                version: 1,
                 about: "LBVH: binary radix tree over sorted codes (Karras 2012; thesis 2.3.4), then SAH compaction",
                 params: vec![],
                 run: |b, _, s, _| bvhlab_builders::lbvh::build(b, sorted(s)),
@@ -867,6 +881,7 @@ impl Registry {
             },
             BuilderInfo {
                 name: "aac",
+                version: 1,
                 about: "approximate agglomerative clustering (Gu et al. 2013; thesis 3.2), then SAH compaction",
                 params: vec![
                     ParamSpec {
@@ -899,6 +914,7 @@ impl Registry {
             },
             BuilderInfo {
                 name: "ploc",
+                version: 1,
                 about: "parallel locally-ordered clustering (Meister and Bittner 2018; thesis 3.6), then SAH compaction",
                 params: vec![ParamSpec {
                     name: "radius",
@@ -922,6 +938,7 @@ impl Registry {
         vec![
             EncoderInfo {
                 name: "morton",
+                version: 1,
                 about: "Morton code, bits per axis interleaved x y z (thesis 2.3.4)",
                 scheme: Scheme::Morton,
                 params: vec![
@@ -939,12 +956,14 @@ impl Registry {
             },
             EncoderInfo {
                 name: "emc64-sort",
+                version: 1,
                 about: "Extended Morton code, 64 bits, size bit every 4th bit, axes by extent (Vinkler 2017; thesis 3.7.1)",
                 scheme: Scheme::Emc64Sort,
                 params: vec![BOUNDS, GRID_BITS, GRID_FRAME],
             },
             EncoderInfo {
                 name: "emc64-var",
+                version: 1,
                 about: "Extended Morton code, 64 bits, size bit every 7th bit, others on the largest axis (thesis 3.7.1)",
                 scheme: Scheme::Emc64Var,
                 params: vec![BOUNDS, GRID_BITS, GRID_FRAME],

@@ -207,6 +207,7 @@ fn test_runner(root: &Path, versions: Versions) -> Runner {
         encoders: Registry::standard_encoders(),
         optimizers: vec![OptimizerInfo {
             name: "test-opt",
+            version: 1,
             about: "test double: reverses the leaf order `passes` times",
             params: vec![ParamSpec {
                 name: "passes",
@@ -1034,4 +1035,214 @@ fn layout_input_errors() {
         assert_eq!(e.exit_code(), 2, "{bad}: {e}");
     }
     assert_eq!(r.counts.computed, 0, "nothing runs for a bad spec");
+}
+
+/// `run_all` with the runner's registry changed by `bump` first.
+fn run_bumped(
+    root: &Path,
+    bump: impl Fn(&mut Registry),
+    chains: &[ChainSpec],
+) -> (Vec<ResultRow>, Counts) {
+    let mut r = test_runner(root, Versions::default());
+    bump(&mut r.registry);
+    let rows = chains
+        .iter()
+        .map(|c| r.run_chain(c, "t").unwrap())
+        .collect();
+    (rows, r.counts.clone())
+}
+
+/// Per-method versions (issue 17): a builder, encoder or optimizer carries its own version, part
+/// of its stage's key; bumping one recomputes that method's nodes and what is downstream of them,
+/// nothing else.
+#[test]
+fn method_version_bump_recomputes_only_that_method() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut opt = code_chain("test-median", None, &[], "none");
+    opt.optimize = Some("test-opt".into());
+    let ch = vec![
+        code_chain("test-median", None, &[], "collapse"),
+        code_chain("test-codes", Some("morton"), &[], "collapse"),
+        code_chain("test-codes2", Some("emc64-var"), &[], "collapse"),
+        opt,
+    ];
+    let (rows, c) = run_bumped(dir.path(), |_| {}, &ch);
+    let counts =
+        |c: &Counts| ["load", "encode", "build", "optimize", "compact"].map(|s| stage(c, s));
+    // 1 load, 2 encodes, 3 builds (the optimizer's shares test-median's), 1 optimize, 3 compacts.
+    assert_eq!(counts(&c), [(1, 0), (2, 0), (3, 0), (1, 0), (3, 0)]);
+    // Version 1 adds nothing to a key (keys written before per-method versions stay valid).
+    let store = Store::open(dir.path()).unwrap();
+    let manifest = |row: &ResultRow, s: &str| {
+        store
+            .read_manifest(s, &Key::from_hex(&row.keys[s]).unwrap())
+            .unwrap()
+    };
+    assert!(!manifest(&rows[1], "build")
+        .params
+        .contains_key("method_version"));
+
+    let builder = |name: &'static str, v: u32| {
+        move |reg: &mut Registry| {
+            reg.builders
+                .iter_mut()
+                .find(|b| b.name == name)
+                .unwrap()
+                .version = v
+        }
+    };
+    let (bumped, c) = run_bumped(dir.path(), builder("test-codes", 2), &ch);
+    assert_eq!(counts(&c), [(0, 1), (0, 2), (1, 2), (0, 1), (1, 2)]);
+    assert_eq!(manifest(&bumped[1], "build").params["method_version"], "2");
+    for (i, (a, b)) in rows.iter().zip(&bumped).enumerate() {
+        for (s, k) in &a.keys {
+            let changed = i == 1 && (s == "build" || s == "compact");
+            assert_eq!(k != &b.keys[s], changed, "chain {i} stage {s}");
+        }
+    }
+    let results = |rows: &[ResultRow]| -> Vec<ResultRow> {
+        rows.iter()
+            .map(|r| ResultRow {
+                keys: Default::default(),
+                ..r.untimed()
+            })
+            .collect()
+    };
+    assert_eq!(
+        results(&bumped),
+        results(&rows),
+        "the same results under new keys"
+    );
+    // Bumped again (a second change of the same builder): computed again; back to 1: cached.
+    let (_, c) = run_bumped(dir.path(), builder("test-codes", 3), &ch);
+    assert_eq!(stage(&c, "build"), (1, 2));
+    let (_, c) = run_bumped(dir.path(), builder("test-codes", 1), &ch);
+    assert_eq!(c.computed, 0);
+
+    // An encoder: its encode nodes and what reads them; the other encoder's chain is untouched.
+    let (_, c) = run_bumped(
+        dir.path(),
+        |reg| {
+            reg.encoders
+                .iter_mut()
+                .find(|e| e.name == "morton")
+                .unwrap()
+                .version = 2
+        },
+        &ch,
+    );
+    assert_eq!(counts(&c), [(0, 1), (1, 1), (1, 2), (0, 1), (1, 2)]);
+    // An optimizer: its optimize node only (the chain has no compaction after it).
+    let (_, c) = run_bumped(dir.path(), |reg| reg.optimizers[0].version = 2, &ch);
+    assert_eq!(counts(&c), [(0, 1), (0, 2), (0, 3), (1, 0), (0, 3)]);
+}
+
+/// With the real registry: bumping one builder's version changes that builder's build keys (and
+/// those downstream of them) and no other builder's; load and encode keys stay the same.
+#[test]
+fn builder_version_changes_only_its_build_keys() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = Runner::new(Store::open(dir.path()).unwrap());
+    let mut ch = Vec::new();
+    for scene in ["gen:sphere:n=100", "gen:terrain"] {
+        for (b, e) in [
+            ("binned-sah", None),
+            ("sweep-sah", None),
+            ("spatial-median", None),
+            ("lbvh", Some("morton")),
+            ("ploc", Some("emc64-var")),
+            ("aac", Some("emc64-var")),
+        ] {
+            let mut c = ChainSpec::new(scene, b);
+            c.encode = e.map(str::to_string);
+            c.compact = "collapse".into();
+            c.layout = Some("qbvh_chunks".into());
+            c.rays = Some(bvhlab_pipeline::RaySpec::Random { count: 100 });
+            ch.push(c.clone());
+            c.optimize = Some("ibo".into());
+            c.layout = None;
+            ch.push(c);
+        }
+    }
+    let nodes = |r: &mut Runner| -> Vec<Vec<(&'static str, Key)>> {
+        ch.iter()
+            .map(|c| {
+                r.chain_nodes(c)
+                    .unwrap()
+                    .into_iter()
+                    .map(|n| (n.stage, n.key))
+                    .collect()
+            })
+            .collect()
+    };
+    let before = nodes(&mut r);
+    for bumped in ["sweep-sah", "ploc"] {
+        let mut r = Runner::new(Store::open(dir.path()).unwrap());
+        r.registry
+            .builders
+            .iter_mut()
+            .find(|b| b.name == bumped)
+            .unwrap()
+            .version += 1;
+        let after = nodes(&mut r);
+        for ((c, a), b) in ch.iter().zip(&before).zip(&after) {
+            assert_eq!(a.len(), b.len());
+            for ((s, ka), (_, kb)) in a.iter().zip(b) {
+                // The build and everything after it in the bumped builder's chains; nothing else.
+                let changed = c.build == bumped && !matches!(*s, "load" | "encode");
+                assert_eq!(ka != kb, changed, "{bumped}: {} {} {s}", c.scene, c.build);
+            }
+        }
+    }
+}
+
+/// Layouts carry their own versions too (`Versions::layouts`): bumping one changes the layout
+/// nodes of that layout and of `auto` (which may choose it), and what reads them (measure), only.
+#[test]
+fn layout_version_changes_only_its_layout_keys() {
+    let dir = tempfile::tempdir().unwrap();
+    let layouts = [
+        "bvh2",
+        "qbvh_chunks",
+        "octree",
+        "octree_1bit",
+        "auto:max_slowdown=1.5,rays=500",
+    ];
+    let ch: Vec<ChainSpec> = layouts
+        .iter()
+        .map(|l| {
+            let mut c = ChainSpec::new("gen:sphere:n=100", "binned-sah");
+            c.layout = Some(l.to_string());
+            c.rays = Some(bvhlab_pipeline::RaySpec::Random { count: 100 });
+            c
+        })
+        .collect();
+    let nodes = |v: Versions| -> Vec<Vec<(&'static str, Key)>> {
+        let mut r = Runner::new(Store::open(dir.path()).unwrap());
+        r.versions = v;
+        ch.iter()
+            .map(|c| {
+                let n = r.chain_nodes(c).unwrap();
+                n.into_iter().map(|n| (n.stage, n.key)).collect()
+            })
+            .collect()
+    };
+    let before = nodes(Versions::default());
+    let bumped = Versions {
+        layouts: &[
+            ("bvh2", 1),
+            ("qbvh_chunks", 1),
+            ("octree", 1),
+            ("octree_1bit", 2),
+        ],
+        ..Versions::default()
+    };
+    let after = nodes(bumped);
+    for ((l, a), b) in layouts.iter().zip(&before).zip(&after) {
+        for ((s, ka), (_, kb)) in a.iter().zip(b) {
+            let changed = (l.starts_with("octree_1bit") || l.starts_with("auto"))
+                && matches!(*s, "layout" | "measure");
+            assert_eq!(ka != kb, changed, "{l} {s}");
+        }
+    }
 }

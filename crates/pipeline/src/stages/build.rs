@@ -1,0 +1,169 @@
+//! The build stage: a builder of the registry over the scene's boxes and centres (and, for the
+//! bottom-up builders, the encode stage's sorted codes). Also what the BVH-producing stages share
+//! (build, optimize, compact): their artifact, the timed repeats with the determinism check, and
+//! the final BVH of a chain.
+use super::chain::{method_version, Plan};
+use super::compact::Compact;
+use super::encode::Encode;
+use super::load::Load;
+use super::optimize::Optimize;
+use super::Ops;
+use crate::error::{Error, Result};
+use crate::run::{secs, Files, Node, Runner, Stage, Timing};
+use bvhlab_bvh::{Aabb, Bvh, Metrics};
+use bvhlab_geom::stats::median;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// 2: bottom-up builders (lbvh, aac, ploc) and the reworked (parallel) binned SAH.
+/// 3: scale-free costs (issue 15): SAH areas and costs in f64, binned SAH bins in f64 and its
+///    "centroids too close" threshold relative to the node box, PLOC/AAC distances of boxes
+///    prescaled by a power of two; the SAH leaf test splits on equal costs (as the compaction
+///    keeps such subtrees).
+/// A change of one builder bumps that builder's own version (`BuilderInfo::version`) instead.
+pub const BUILD_VERSION: u32 = 3;
+
+/// Summary of a BVH-producing stage (`build`, `compact`): metrics, validity, hash and timings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BvhSummary {
+    pub metrics: Metrics,
+    pub valid: bool,
+    pub invalid_reason: Option<String>,
+    /// blake3 of `Bvh::canonical_bytes`.
+    pub bvh_hash: String,
+    /// Seconds of each of the `repeat` runs.
+    pub seconds: Vec<f64>,
+    pub median_seconds: f64,
+}
+
+/// Full artifact of a BVH-producing stage (`<key>.bin`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BvhArtifact {
+    pub bvh: Bvh,
+    pub summary: BvhSummary,
+}
+
+/// The BVH-producing stages, in chain order.
+pub(crate) const BVH_STAGES: [&str; 3] = ["build", "optimize", "compact"];
+
+/// The chain's final BVH (compact, else optimize, else build): what layout, measure and focus read.
+pub(crate) fn final_bvh(rt: &mut Runner, plan: &Plan) -> Result<Arc<BvhArtifact>> {
+    bvh_of(rt, plan, plan.final_bvh().stage)
+}
+
+/// The BVH artifact of the chain's `stage` node (one of `BVH_STAGES`).
+pub(crate) fn bvh_of(rt: &mut Runner, plan: &Plan, stage: &str) -> Result<Arc<BvhArtifact>> {
+    match stage {
+        "build" => rt.full::<Build>(plan),
+        "optimize" => rt.full::<Optimize>(plan),
+        "compact" => rt.full::<Compact>(plan),
+        s => Err(Error::internal(format!("stage `{s}` has no BVH"))),
+    }
+}
+
+/// Runs a BVH-producing method `repeat` times (only `run` is timed: boxes and centres are shared
+/// input preparation), requires every run to give the same tree (except a time-capped optimizer's,
+/// which stops wherever the clock says: the first run's tree is kept, and the row says
+/// `optimize_stop = max_seconds`), and summarises the first: metrics, validation, hash, times.
+pub(crate) fn repeat_bvh(
+    ops: &Ops,
+    plan: &Plan,
+    node: &Node,
+    boxes: &[Aabb],
+    time_capped: bool,
+    mut run: impl FnMut() -> Bvh,
+) -> Result<BvhArtifact> {
+    let cost = plan.resolved.cost;
+    let mut seconds = Vec::with_capacity(plan.spec.repeat as usize);
+    let mut first: Option<(Bvh, blake3::Hash)> = None;
+    for i in 0..plan.spec.repeat {
+        let t = Instant::now();
+        let bvh = run();
+        seconds.push(secs(t));
+        let h = blake3::hash(&bvh.canonical_bytes());
+        match &first {
+            None => first = Some((bvh, h)),
+            Some(_) if time_capped => {}
+            Some((_, h0)) if *h0 != h => {
+                return Err(Error::internal(format!(
+                    "{} `{}` is not deterministic: run {} produced a different BVH than run 1 on {}",
+                    node.stage,
+                    node.params.get("builder").or(node.params.get("method")).cloned().unwrap_or_default(),
+                    i + 1,
+                    plan.spec.scene
+                )));
+            }
+            _ => {}
+        }
+    }
+    let (bvh, hash) = first.ok_or_else(|| Error::internal("repeat = 0"))?;
+    let metrics = (ops.metrics)(&bvh, cost);
+    let validation = (ops.validate)(&bvh, boxes);
+    let summary = BvhSummary {
+        metrics,
+        valid: validation.is_ok(),
+        invalid_reason: validation.err(),
+        bvh_hash: hash.to_hex().to_string(),
+        median_seconds: median(&seconds),
+        seconds,
+    };
+    Ok(BvhArtifact { bvh, summary })
+}
+
+pub(crate) struct Build;
+
+impl Stage for Build {
+    const NAME: &'static str = "build";
+    const TIMING: Timing = Timing::Build;
+    type Full = BvhArtifact;
+    type Sum = BvhSummary;
+
+    fn declare(rt: &mut Runner, plan: &mut Plan) -> Result<Option<Node>> {
+        let mut p = plan.resolved.key_params();
+        p.insert("builder".into(), plan.resolved.builder.clone());
+        p.insert("repeat".into(), plan.spec.repeat.to_string());
+        method_version(&mut p, rt.registry.get(&plan.resolved.builder)?.version);
+        let mut inputs = vec![("load", plan.need("load")?.key)];
+        if let Some(e) = plan.node("encode") {
+            inputs.push(("encode", e.key));
+        }
+        Ok(Some(Node::new(Self::NAME, rt.versions.build, p, inputs)))
+    }
+
+    fn summary(a: &BvhArtifact) -> BvhSummary {
+        a.summary.clone()
+    }
+
+    fn compute(rt: &mut Runner, plan: &Plan, node: &Node) -> Result<(BvhArtifact, Files)> {
+        let scene = rt.full::<Load>(plan)?;
+        let (boxes, centers) = scene.boxes_and_centers();
+        let encoding = match plan.node("encode") {
+            Some(_) => Some(rt.full::<Encode>(plan)?),
+            None => None,
+        };
+        let codes = encoding.as_ref().map(|e| bvhlab_builders::SortedCodes {
+            order: &e.encoding.order,
+            codes: &e.encoding.codes,
+            code_bits: e.encoding.code_bits,
+        });
+        let info = rt.registry.get(&plan.resolved.builder)?.clone();
+        if info.codes.is_some() != codes.is_some() {
+            return Err(Error::internal(format!(
+                "builder `{}`: codes expected iff it uses codes",
+                info.name
+            )));
+        }
+        let (ops, cost) = (rt.ops, plan.resolved.cost);
+        // Bottom-up builders include their SAH compaction (thesis: part of AAC / PLOC).
+        let art = repeat_bvh(&ops, plan, node, &boxes, false, || {
+            let bvh = (info.run)(&boxes, &centers, codes.as_ref(), &plan.resolved);
+            if info.collapse {
+                (ops.collapse)(&bvh, cost)
+            } else {
+                bvh
+            }
+        })?;
+        Ok((art, Files::new()))
+    }
+}

@@ -1,0 +1,105 @@
+//! The encode stage: Morton / EMC codes of the primitives and their sorted order (thesis 2.3.4,
+//! 3.7.1; Riemersma 2024), for the builders that take codes (lbvh, aac, ploc).
+use super::chain::{method_version, Plan};
+use super::load::Load;
+use crate::error::{Error, Result};
+use crate::run::{secs, Files, Node, Runner, Stage, Timing};
+use bvhlab_geom::stats::median;
+use bvhlab_morton::Encoding;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// 3: EMC size of boxes spanning more than the f32 range (issue 15).
+pub const ENCODE_VERSION: u32 = 3;
+
+/// Summary of the encode stage (`encode/<key>.sum`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EncodeSummary {
+    pub code_bits: u32,
+    pub duplicate_fraction: f64,
+    /// Bit layout, most significant bit first (`Encoding::layout`).
+    pub layout: String,
+    /// Seconds of each of the `repeat` runs of `encode()` (codes + sort).
+    pub seconds: Vec<f64>,
+    pub median_seconds: f64,
+}
+
+/// Full artifact of the encode stage (`encode/<key>.bin`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EncodeArtifact {
+    pub encoding: Encoding,
+    pub summary: EncodeSummary,
+}
+
+pub(crate) struct Encode;
+
+impl Stage for Encode {
+    const NAME: &'static str = "encode";
+    const TIMING: Timing = Timing::Build;
+    type Full = EncodeArtifact;
+    type Sum = EncodeSummary;
+
+    /// Encoder parameters are canonical with `bits=auto` resolved for the builder, so chains
+    /// whose codes are identical (e.g. emc64-var for aac and ploc) share the encode node.
+    fn declare(rt: &mut Runner, plan: &mut Plan) -> Result<Option<Node>> {
+        let Some(e) = &plan.encoder else {
+            return Ok(None);
+        };
+        let mut p = e.params.clone();
+        p.insert("encoder".into(), e.encoder.clone());
+        p.insert("repeat".into(), plan.spec.repeat.to_string());
+        method_version(&mut p, rt.registry.encoder(&e.encoder)?.version);
+        let inputs = vec![("load", plan.need("load")?.key)];
+        Ok(Some(Node::new(Self::NAME, rt.versions.encode, p, inputs)))
+    }
+
+    fn summary(a: &EncodeArtifact) -> EncodeSummary {
+        a.summary.clone()
+    }
+
+    fn compute(rt: &mut Runner, plan: &Plan, _: &Node) -> Result<(EncodeArtifact, Files)> {
+        let enc = plan
+            .encoder
+            .clone()
+            .ok_or_else(|| Error::internal("chain has no encoder"))?;
+        let scene = rt.full::<Load>(plan)?;
+        let (boxes, centers) = scene.boxes_and_centers();
+        let mut seconds = Vec::new();
+        let mut first: Option<Encoding> = None;
+        for run in 0..plan.spec.repeat {
+            // Only encode() is timed (codes + sort); boxes and centres are shared preparation.
+            let t = Instant::now();
+            let e = (rt.ops.encode)(&boxes, &centers, &enc.config, enc.cell_frame);
+            seconds.push(secs(t));
+            match &first {
+                None => first = Some(e),
+                Some(e0) if *e0 != e => {
+                    return Err(Error::internal(format!(
+                        "encoder `{}` is not deterministic: run {} produced different codes than run 1 on {}",
+                        enc.encoder,
+                        run + 1,
+                        plan.spec.scene
+                    )));
+                }
+                _ => {}
+            }
+        }
+        let encoding = first.ok_or_else(|| Error::internal("repeat = 0"))?;
+        if encoding.order.len() != boxes.len() || encoding.codes.len() != boxes.len() {
+            return Err(Error::internal(format!(
+                "encoder `{}` returned {} codes for {} primitives",
+                enc.encoder,
+                encoding.codes.len(),
+                boxes.len()
+            )));
+        }
+        let summary = EncodeSummary {
+            code_bits: encoding.code_bits,
+            duplicate_fraction: encoding.duplicate_fraction(),
+            layout: encoding.layout.clone(),
+            median_seconds: median(&seconds),
+            seconds,
+        };
+        Ok((EncodeArtifact { encoding, summary }, Files::new()))
+    }
+}
