@@ -27,8 +27,74 @@ use crate::bottomup::{to_bvh, ClusterTree};
 use crate::simd_box::BoxA;
 use crate::sorted::SortedCodes;
 use bvhlab_bvh::{Aabb, Bvh};
+use bvhlab_params::{fmt_f32, Kind, Method, ParamSpec, Params, Read};
 use glam::Vec3A;
 use serde::{Deserialize, Serialize};
+
+pub const METHOD: Method = Method::new(
+    "aac",
+    "approximate agglomerative clustering (Gu et al. 2013; thesis 3.2), then SAH compaction",
+    "Gu et al. 2013; thesis 3.2",
+    &[
+        ParamSpec {
+            name: "preset",
+            default: "none",
+            kind: Kind::Choice(&["hq", "fast", "none"]),
+            about: "hq: delta=20 epsilon=0.1, fast: delta=4 epsilon=0.2 (thesis table 2); none: use delta/epsilon",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "delta",
+            default: "20",
+            kind: Kind::UInt { min: 1, max: 1 << 20 },
+            about: "constraint-tree leaf threshold delta (thesis 3.2)",
+            in_label: true,
+        },
+        ParamSpec {
+            name: "epsilon",
+            default: "0.1",
+            kind: Kind::NonNegativeFloat,
+            about: "cluster-count reduction exponent term epsilon (thesis 3.2)",
+            in_label: true,
+        },
+    ],
+)
+.with_finish(presets)
+.with_label(label);
+
+/// `preset=hq|fast` fills delta / epsilon (thesis table 2); explicit values must agree with it.
+/// The canonical parameters are delta and epsilon only, so `preset=hq` and `delta=20,epsilon=0.1`
+/// share a key.
+fn presets(given: &Params, params: &mut Params) -> Result<(), String> {
+    let preset = params.remove("preset").unwrap_or_else(|| "none".into());
+    let cfg = match preset.as_str() {
+        "hq" => AacConfig::HQ,
+        "fast" => AacConfig::FAST,
+        _ => return Ok(()),
+    };
+    for (name, val) in [("delta", cfg.delta.to_string()), ("epsilon", fmt_f32(cfg.epsilon))] {
+        if given.contains_key(name) && params.get(name) != Some(&val) {
+            return Err(format!(
+                "preset={preset} sets {name}={val}, but {name}={} was given; give either the preset or delta/epsilon",
+                given[name]
+            ));
+        }
+        params.insert(name.to_string(), val);
+    }
+    Ok(())
+}
+
+/// `aac HQ`, `aac fast` (thesis table 2), else `aac delta=.. epsilon=..`.
+fn label(p: &Params) -> String {
+    let c = AacConfig::from_params(p);
+    if c == AacConfig::HQ {
+        "aac HQ".into()
+    } else if c == AacConfig::FAST {
+        "aac fast".into()
+    } else {
+        format!("aac delta={} epsilon={}", c.delta, fmt_f32(c.epsilon))
+    }
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AacConfig {
@@ -49,6 +115,16 @@ impl AacConfig {
         delta: 4,
         epsilon: 0.2,
     };
+}
+
+impl AacConfig {
+    /// From the canonical parameters of [`METHOD`] (presets already resolved).
+    pub fn from_params(p: &Params) -> AacConfig {
+        AacConfig {
+            delta: p.typed("delta"),
+            epsilon: p.typed("epsilon"),
+        }
+    }
 }
 
 /// Constraint subtrees at least this large are handed to `rayon::join`. Below it a task is a few

@@ -7,9 +7,35 @@ use crate::primref::{
     make_refs, make_refs_parallel, object_median, partition, partition_parallel, PrimRef,
 };
 use crate::topdown::{build_nodes, build_nodes_parallel, Range};
-use crate::TopDownConfig;
+use crate::{TopDownConfig, LEAF};
 use bvhlab_bvh::{Aabb, Bvh, Node, Vec3};
+use bvhlab_params::{Kind, Method, ParamSpec};
 use serde::{Deserialize, Serialize};
+
+/// Registered with [`build_parallel`] (thesis 3.1.2).
+pub const METHOD: Method = Method::new(
+    "binned-sah",
+    "binned SAH (Wald 2007; thesis 3.1.1), parallel (thesis 3.1.2)",
+    "Wald 2007; thesis 3.1.1",
+    &[
+        ParamSpec {
+            name: "bins",
+            default: "16",
+            kind: Kind::UInt { min: 2, max: 4096 },
+            about: "number of bins per axis",
+            in_label: true,
+        },
+        LEAF,
+        ParamSpec {
+            name: "centroid_stop",
+            default: "split-axis",
+            kind: Kind::Choice(&["split-axis", "any-axis"]),
+            about: "stop when the centroid extent is < 1e-7 of the node box along the split axis (default) or along any \
+                    axis (the thesis' literal rule, 3.1.1; reproduces its BIN column)",
+            in_label: false,
+        },
+    ],
+);
 
 /// Eq. 6's epsilon: shifts every centroid slightly left so the right boundary needs no special case.
 const BIN_EPSILON: f64 = 1e-5;
@@ -34,6 +60,17 @@ pub enum CentroidTermination {
     /// the root) then becomes a leaf however many primitives it holds; this raises the SAH cost of
     /// architectural scenes. Kept to reproduce the thesis' BIN column.
     AnyAxis,
+}
+
+impl std::str::FromStr for CentroidTermination {
+    type Err = ();
+    fn from_str(s: &str) -> Result<CentroidTermination, ()> {
+        match s {
+            "split-axis" => Ok(CentroidTermination::SplitAxis),
+            "any-axis" => Ok(CentroidTermination::AnyAxis),
+            _ => Err(()),
+        }
+    }
 }
 
 /// `bins` is `k` of the thesis (16 in its tables); values below 2 are treated as 2.

@@ -22,9 +22,64 @@
 //! Every decision depends only on the input, never on scheduling: same bytes at any thread count.
 use crate::simd_box::BoxA;
 use crate::sweep_sah;
-use crate::TopDownConfig;
+use crate::{TopDownConfig, LEAF};
 use bvhlab_bvh::{Aabb, Bvh, Node, Vec3};
+use bvhlab_params::{Kind, Method, ParamSpec, Params, Read};
 use rayon::prelude::*;
+
+pub const METHOD: Method = Method::new(
+    "bonsai",
+    "Bonsai: spatial-median mini-tree sets of at most n, full-sweep SAH mini trees in parallel, optional \
+     pruning, full-sweep SAH top tree (Ganestam et al. 2015; thesis 3.3)",
+    "Ganestam et al. 2015; thesis 3.3",
+    &[
+        ParamSpec {
+            name: "n",
+            default: "512",
+            kind: Kind::UInt { min: 2, max: 1 << 24 },
+            about: "primitive set size threshold N (thesis table 3: 512 or 4096)",
+            in_label: true,
+        },
+        ParamSpec {
+            name: "t",
+            default: "0.1",
+            kind: Kind::PositiveFloat,
+            about: "pruning threshold T, times the mean mini-tree area (thesis 3.3.3: 0.1 or 0.01)",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "prune",
+            default: "false",
+            kind: Kind::Choice(&["true", "false"]),
+            about: "prune mini trees larger than T times the mean (thesis 3.3.3)",
+            in_label: true,
+        },
+        LEAF,
+    ],
+)
+.with_finish(t_only_with_pruning)
+.with_label(label);
+
+/// `t` only matters with `prune=true`; without pruning it is dropped from the key, so BP0 has one
+/// spelling.
+fn t_only_with_pruning(_given: &Params, params: &mut Params) -> Result<(), String> {
+    if params.word("prune") != "true" {
+        params.remove("t");
+    }
+    Ok(())
+}
+
+/// `bonsai n=512 prune t=0.1`, plus `leaf` when changed.
+fn label(p: &Params) -> String {
+    let mut s = format!("bonsai n={}", p.typed::<u32>("n"));
+    if p.typed::<bool>("prune") {
+        s.push_str(&format!(" prune t={}", p.word("t")));
+    }
+    if p.get("leaf").map(String::as_str) != Some(LEAF.default) {
+        s.push_str(&format!(" leaf={}", p.typed::<u32>("leaf")));
+    }
+    s
+}
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BonsaiConfig {
@@ -60,6 +115,18 @@ impl BonsaiConfig {
         prune: true,
         ..Self::BP0
     };
+}
+
+impl BonsaiConfig {
+    /// From the canonical parameters of [`METHOD`]; `top` carries `leaf` and the cost constants.
+    pub fn from_params(p: &Params, top: TopDownConfig) -> BonsaiConfig {
+        BonsaiConfig {
+            n: p.typed("n"),
+            t: p.typed("t"),
+            prune: p.typed("prune"),
+            top,
+        }
+    }
 }
 
 /// A selection record: centroid and primitive index (16 bytes, so the partitions stream).

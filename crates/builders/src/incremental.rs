@@ -24,6 +24,37 @@ use bvhlab_opt::ibo::{measure_value, reinsert_children, Measure};
 use bvhlab_opt::search::{find_best, SearchScratch};
 use bvhlab_bvh::dyntree::{DNode, DynTree, NONE};
 use bvhlab_bvh::{Aabb, Bvh, CostParams};
+use bvhlab_params::{Kind, Method, ParamSpec, Params, Read};
+
+pub const METHOD: Method = Method::new(
+    "incremental",
+    "insertion of primitives in input order with branch-and-bound search and an optimization pass \
+     per batch (Bittner et al. 2015; thesis 3.5.1); one primitive per leaf: add compact = \"collapse\"",
+    "Bittner et al. 2015; thesis 3.5.1",
+    &[
+        ParamSpec {
+            name: "batch",
+            default: "8000",
+            kind: Kind::UInt { min: 1, max: u32::MAX },
+            about: "primitives inserted between optimization passes (thesis table 5)",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "ofrac",
+            default: "0.01",
+            kind: Kind::PositiveFloat,
+            about: "fraction of the touched inner nodes optimized after each batch (thesis table 5)",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "coh",
+            default: "1.5",
+            kind: Kind::NonNegativeFloat,
+            about: "coherence threshold R_max of thesis eq. 13 (0 disables clustering)",
+            in_label: false,
+        },
+    ],
+);
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IncConfig {
@@ -44,6 +75,18 @@ impl Default for IncConfig {
             ofrac: 0.01,
             coh: 1.5,
             cost: CostParams::default(),
+        }
+    }
+}
+
+impl IncConfig {
+    /// From the canonical parameters of [`METHOD`].
+    pub fn from_params(p: &Params, cost: CostParams) -> IncConfig {
+        IncConfig {
+            batch: p.typed("batch"),
+            ofrac: p.typed("ofrac"),
+            coh: p.typed("coh"),
+            cost,
         }
     }
 }

@@ -7,6 +7,14 @@
 use crate::bottomup::{to_bvh, ClusterTree};
 use crate::sorted::SortedCodes;
 use bvhlab_bvh::{Aabb, Bvh};
+use bvhlab_params::Method;
+
+pub const METHOD: Method = Method::new(
+    "lbvh",
+    "LBVH: binary radix tree over sorted codes (Karras 2012; thesis 2.3.4), then SAH compaction",
+    "Karras 2012; thesis 2.3.4",
+    &[],
+);
 use rayon::prelude::*;
 
 /// Rayon grain: one internal node is a few dozen instructions.

@@ -34,7 +34,17 @@ pub(crate) mod topdown;
 pub use sorted::SortedCodes;
 
 use bvhlab_bvh::CostParams;
+use bvhlab_params::{Kind, ParamSpec};
 use serde::{Deserialize, Serialize};
+
+/// [`TopDownConfig::leaf`] as a parameter of the top-down builders.
+pub const LEAF: ParamSpec = ParamSpec {
+    name: "leaf",
+    default: "2",
+    kind: Kind::UInt { min: 1, max: 1 << 16 },
+    about: "primitive threshold: nodes with at most this many triangles become leaves (thesis 2.3.1)",
+    in_label: false,
+};
 
 /// Settings shared by the top-down builders.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

@@ -16,13 +16,34 @@
 use crate::bottomup::{to_bvh, ClusterTree};
 use crate::sorted::SortedCodes;
 use bvhlab_bvh::{Aabb, Bvh};
+use bvhlab_params::{Kind, Method, ParamSpec, Params, Read};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+
+pub const METHOD: Method = Method::new(
+    "ploc",
+    "parallel locally-ordered clustering (Meister and Bittner 2018; thesis 3.6), then SAH compaction",
+    "Meister and Bittner 2018; thesis 3.6",
+    &[ParamSpec {
+        name: "radius",
+        default: "10",
+        kind: Kind::UInt { min: 1, max: 1 << 16 },
+        about: "nearest-neighbour search radius r (thesis table 6: 10, 25, 100)",
+        in_label: true,
+    }],
+);
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PlocConfig {
     /// Nearest-neighbour search radius r (thesis table 6; PL1/PL2/PL3 = 10/25/100).
     pub radius: u32,
+}
+
+impl PlocConfig {
+    /// From the canonical parameters of [`METHOD`].
+    pub fn from_params(p: &Params) -> PlocConfig {
+        PlocConfig { radius: p.typed("radius") }
+    }
 }
 
 /// Clusters per parallel task (the neighbour search uses at least 8 r). Chunking never changes the

@@ -12,8 +12,28 @@
 //! median along the same axis, so construction always terminates.
 use crate::primref::{make_refs, object_median, partition, PrimRef};
 use crate::topdown::{build_nodes, Range};
-use crate::TopDownConfig;
+use crate::{TopDownConfig, LEAF};
 use bvhlab_bvh::{Aabb, Bvh, Vec3};
+use bvhlab_params::{Kind, Method, ParamSpec};
+
+pub const METHOD: Method = Method::new(
+    "spatial-median",
+    "split the largest axis at its middle (Kay and Kajiya 1986; thesis 3.2)",
+    "Kay and Kajiya 1986; thesis 3.2",
+    &[
+        LEAF,
+        ParamSpec {
+            name: "frame",
+            default: "centroids",
+            kind: Kind::Choice(&["centroids", "node"]),
+            about: "box whose largest axis is halved: the node's centroid bounds (bvhlab's default: \
+                    only a plane inside them separates centroids) or the node's bounding box \
+                    (Kay and Kajiya 1986, the start tree of Bittner 2013 tables 3 and 5); an empty \
+                    side falls back to the object median",
+            in_label: false,
+        },
+    ],
+);
 
 /// Whose bounding box the split plane halves.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -38,6 +58,13 @@ impl Frame {
             Frame::Centroids => "centroids",
             Frame::Node => "node",
         }
+    }
+}
+
+impl std::str::FromStr for Frame {
+    type Err = ();
+    fn from_str(s: &str) -> Result<Frame, ()> {
+        Frame::parse(s).ok_or(())
     }
 }
 

@@ -13,9 +13,17 @@
 //! and loops are unchanged).
 use crate::simd_box::BoxA;
 use crate::topdown::{build_nodes, Range};
-use crate::TopDownConfig;
+use crate::{TopDownConfig, LEAF};
 use bvhlab_bvh::{Aabb, Bvh, Node, Vec3};
+use bvhlab_params::Method;
 use glam::Vec3A;
+
+pub const METHOD: Method = Method::new(
+    "sweep-sah",
+    "full-sweep SAH over all three axes (thesis 3.3.1)",
+    "thesis 3.3.1",
+    &[LEAF],
+);
 
 #[derive(Clone, Copy, Debug)]
 #[repr(C)]

@@ -1,5 +1,6 @@
 //! Metrics exactly as Frantal 2019 defines them (eq. 4 in 2.2.2, the list in 4.4).
 use crate::Bvh;
+use bvhlab_params::{Kind, ParamSpec};
 use serde::{Deserialize, Serialize};
 
 /// SAH constants: c_T traversal, c_I intersection (thesis 2.2.2; defaults 3 and 2 as in 4.4).
@@ -14,6 +15,24 @@ impl Default for CostParams {
         Self { c_t: 3.0, c_i: 2.0 }
     }
 }
+
+/// `c_t` and `c_i` as parameters of every builder (defaults: [`CostParams::default`]).
+pub const COST_PARAMS: [ParamSpec; 2] = [
+    ParamSpec {
+        name: "c_t",
+        default: "3",
+        kind: Kind::PositiveFloat,
+        about: "SAH traversal cost c_T (thesis 2.2.2)",
+        in_label: false,
+    },
+    ParamSpec {
+        name: "c_i",
+        default: "2",
+        kind: Kind::PositiveFloat,
+        about: "SAH intersection cost c_I (thesis 2.2.2)",
+        in_label: false,
+    },
+];
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Metrics {

@@ -494,40 +494,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Cmd::Methods => {
-            let reg = Registry::standard();
-            let show = |p: &bvhlab_pipeline::registry::ParamSpec| println!("    {}=[{}]  {}", p.name, p.default, p.about);
-            println!("builders:");
-            for b in &reg.builders {
-                let kind = if b.codes.is_some() { "  (takes codes: --encode)" } else { "" };
-                println!("  {}  {}{kind}", b.name, b.about);
-                b.params.iter().for_each(show);
-            }
-            println!("  every builder also takes c_t=[3] and c_i=[2] (SAH costs, thesis 2.2.2)");
-            println!("encoders (for builders that take codes):");
-            for e in &reg.encoders {
-                println!("  {}  {}", e.name, e.about);
-                e.params.iter().for_each(show);
-            }
-            println!("optimizers (--optimize; run after the build, before the compaction):");
-            for o in &reg.optimizers {
-                println!("  {}  {}", o.name, o.about);
-                o.params.iter().for_each(show);
-            }
-            println!("layouts (--layout NAME[:k=v,...]; the final BVH in memory, traced by --rays beside bvh2):");
-            use bvhlab_pipeline::bvhlab_layout::{param_schema, LAYOUTS};
-            for name in LAYOUTS {
-                println!("  {name}  {}", layout_about(name));
-                for (k, d) in param_schema(name).unwrap_or(&[]) {
-                    println!("    {k}=[{d}]");
-                }
-            }
-            println!("  auto  smallest total bytes within a trace-time slowdown against bvh2, picked per scene from a small measured search (machine dependent)");
-            println!("    max_slowdown=[{}]", bvhlab_pipeline::stages::AUTO_MAX_SLOWDOWN);
-            println!("    rays=[{}]  random rays each candidate is timed on", bvhlab_pipeline::stages::AUTO_RAYS);
-            println!(
-                "    budget=[{}]  search time in multiples of one bvh2 trace of those rays; then it stops and says so",
-                bvhlab_pipeline::stages::AUTO_BUDGET
-            );
+            print!("{}", Registry::standard().describe());
             Ok(())
         }
     }
@@ -787,16 +754,6 @@ fn print_layout_block(o: &serde_json::Map<String, serde_json::Value>) {
             Some(serde_json::Value::String(s)) => println!("  {k}: {s}"),
             Some(v) => println!("  {k}: {v}"),
         }
-    }
-}
-
-fn layout_about(name: &str) -> &'static str {
-    match name {
-        "bvh2" => "the flat 32-byte-node BVH (the baseline every layout is compared with)",
-        "qbvh_chunks" => "Kilian 5.2 quantized BVH: bit-field topology in fixed-size chunks, `bits` per box coordinate, frame = chunk root or parent box",
-        "octree" => "Kilian 4.1 basic octree, 32-bit nodes, built from the triangles (ignores the BVH; references may repeat)",
-        "octree_1bit" => "Kilian 4.2 1-bit octree in fixed-size chunks (ignores the BVH)",
-        _ => "",
     }
 }
 

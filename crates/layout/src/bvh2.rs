@@ -3,8 +3,16 @@
 use crate::Memory;
 use bvhlab_bvh::{Bvh, CostParams, Node};
 use bvhlab_geom::Triangle;
+use bvhlab_params::Method;
 use bvhlab_trace::{Ray, TraceStats};
 use serde::{Deserialize, Serialize};
+
+pub const METHOD: Method = Method::new(
+    "bvh2",
+    "the flat 32-byte-node BVH (the baseline every layout is compared with)",
+    "Kilian 2021 5.1 (basic BVH)",
+    &[],
+);
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Bvh2 {

@@ -19,12 +19,18 @@ pub mod qbvh_chunks;
 
 use bvhlab_bvh::{Bvh, CostParams};
 use bvhlab_geom::Triangle;
+use bvhlab_params::{fill, unknown, Method, Spelling};
 use bvhlab_trace::{Ray, TraceStats};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
-/// Layout names accepted by `build` (the pipeline adds `auto`, a search over these).
-pub const LAYOUTS: [&str; 4] = ["bvh2", "qbvh_chunks", "octree", "octree_1bit"];
+/// The layouts as they describe themselves (name, paper reference, typed parameters): the
+/// pipeline's method table lists these (and adds `auto`, a search over them). A new layout adds its
+/// entry here and its arms to the dispatches below.
+pub const METHODS: [&Method; 4] = [&bvh2::METHOD, &qbvh_chunks::METHOD, &octree::METHOD, &octree_1bit::METHOD];
+
+/// Layout names accepted by `build`.
+pub const LAYOUTS: [&str; 4] = [METHODS[0].name, METHODS[1].name, METHODS[2].name, METHODS[3].name];
 
 /// What a layout costs in memory. "Topology" is Kilian's *size of topology* (6.2): everything
 /// traversal reads at every step (nodes; chunks + node info), not the leaf arrays
@@ -77,48 +83,35 @@ pub fn renamed(name: &str) -> Option<String> {
         .map(|(old, new, source)| format!("layout `{old}` was renamed to `{new}` ({source})"))
 }
 
-/// (name, default) of each layout's parameters.
-pub fn param_schema(name: &str) -> Option<&'static [(&'static str, &'static str)]> {
-    Some(match name {
-        "bvh2" => &[],
-        "qbvh_chunks" => qbvh_chunks::PARAMS,
-        "octree" => octree::PARAMS,
-        "octree_1bit" => octree_1bit::PARAMS,
-        _ => return None,
-    })
-}
-
 impl LayoutSpec {
-    /// Validates `name` and `params` (unknown names and bad values are errors naming the valid
-    /// choices) and fills in defaults.
+    /// Validates `name` and `params` against [`METHODS`] (unknown names and bad values are errors
+    /// naming the valid choices) and fills in defaults. Values keep their spelling (trimmed): the
+    /// layout stage has been keyed by them as written (`mult_threshold=2.0`).
     pub fn parse(name: &str, given: &BTreeMap<String, String>) -> Result<LayoutSpec, String> {
         if let Some(e) = renamed(name) {
             return Err(e);
         }
-        let schema = param_schema(name).ok_or_else(|| {
+        let method = METHODS.iter().find(|m| m.name == name).ok_or_else(|| {
+            format!("unknown layout `{name}`; valid: {}, auto", LAYOUTS.join(", "))
+        })?;
+        if let Some(k) = unknown(&[method.params], given) {
+            return Err(format!(
+                "unknown parameter `{k}` for layout `{name}`; valid parameters: {}",
+                bvhlab_params::names(method.params)
+            ));
+        }
+        let params = fill(method.params, given, None, Spelling::AsGiven).map_err(|e| {
             format!(
-                "unknown layout `{name}`; valid: {}, auto",
-                LAYOUTS.join(", ")
+                "bad value `{}` for `{}` of layout `{name}`: expected {}",
+                e.given, e.param, e.want
             )
         })?;
-        let mut params = BTreeMap::new();
-        for (k, v) in given {
-            if !schema.iter().any(|(n, _)| n == k) {
-                let valid: Vec<&str> = schema.iter().map(|(n, _)| *n).collect();
-                return Err(format!(
-                    "layout `{name}` has no parameter `{k}`; its parameters: {}",
-                    if valid.is_empty() {
-                        "none".to_string()
-                    } else {
-                        valid.join(", ")
-                    }
-                ));
-            }
-            params.insert(k.clone(), v.trim().to_string());
-        }
-        for (k, d) in schema {
-            params.entry(k.to_string()).or_insert_with(|| d.to_string());
-        }
+        LayoutSpec::checked(name, params)
+    }
+
+    /// A spec from parameters already checked against the layout's [`Method`] and filled in, after
+    /// the checks a parameter's range cannot say (e.g. a chunk size a multiple of 8).
+    pub fn checked(name: &str, params: BTreeMap<String, String>) -> Result<LayoutSpec, String> {
         let spec = LayoutSpec {
             name: name.to_string(),
             params,

@@ -28,6 +28,7 @@
 use crate::{LayoutSpec, Memory};
 use bvhlab_bvh::CostParams;
 use bvhlab_geom::{Aabb, Triangle, Vec3};
+use bvhlab_params::{Kind, Method, ParamSpec};
 use bvhlab_trace::{
     accept, intersect_triangle, trace_with, Hit, Ray, RayBox, TraceStats, SLAB_ROBUST,
 };
@@ -35,12 +36,43 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-/// (name, default) of the parameters.
-pub const PARAMS: &[(&str, &str)] = &[
-    ("max_depth", "24"),
-    ("mult_threshold", "2.0"),
-    ("overlap", "sat"),
-    ("prim_threshold", "20"),
+pub const METHOD: Method = Method::new(
+    "octree",
+    "Kilian 4.1 basic octree, 32-bit nodes, built from the triangles (ignores the BVH; references may repeat)",
+    "Kilian 2021 4.1",
+    &PARAMS,
+);
+
+/// The construction parameters ([`Config`]), shared with the 1-bit octree.
+pub const PARAMS: [ParamSpec; 4] = [
+    ParamSpec {
+        name: "max_depth",
+        default: "24",
+        kind: Kind::UInt { min: 0, max: MAX_DEPTH_LIMIT },
+        about: "a node at this depth becomes a leaf",
+        in_label: false,
+    },
+    ParamSpec {
+        name: "mult_threshold",
+        default: "2.0",
+        kind: Kind::FloatAtLeast(1.0),
+        about: "a node becomes a leaf when its children would hold more than this many times its references (Kilian alg. 1)",
+        in_label: false,
+    },
+    ParamSpec {
+        name: "overlap",
+        default: "sat",
+        kind: Kind::Choice(&["sat", "aabb"]),
+        about: "triangle/octant test: separating axes (exact) or the triangle's box, both with a margin",
+        in_label: false,
+    },
+    ParamSpec {
+        name: "prim_threshold",
+        default: "20",
+        kind: Kind::UInt { min: 0, max: u32::MAX },
+        about: "a node with fewer references becomes a leaf (Kilian 4.1.2)",
+        in_label: false,
+    },
 ];
 
 /// Deepest `max_depth` accepted (f32 boxes collapse long before: 2^-40 of the world box).

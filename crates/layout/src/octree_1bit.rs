@@ -22,18 +22,35 @@ use crate::octree::{self, sah_topo, trace_topo, validate_topo, Expand, Octree, T
 use crate::{LayoutSpec, Memory};
 use bvhlab_bvh::CostParams;
 use bvhlab_geom::{Aabb, Triangle};
+use bvhlab_params::{Kind, Method, ParamSpec};
 use bvhlab_trace::{Ray, TraceStats};
 use serde::{Deserialize, Serialize};
 
-/// (name, default) of the parameters.
-pub const PARAMS: &[(&str, &str)] = &[
-    ("chunk_bytes", "16"),
-    ("fill", "bfs"),
-    ("max_depth", "24"),
-    ("mult_threshold", "2.0"),
-    ("overlap", "sat"),
-    ("prim_threshold", "20"),
-];
+pub const METHOD: Method = Method::new(
+    "octree_1bit",
+    "Kilian 4.2 1-bit octree in fixed-size chunks (ignores the BVH)",
+    "Kilian 2021 4.2",
+    &[
+        ParamSpec {
+            name: "chunk_bytes",
+            default: "16",
+            kind: Kind::UInt { min: 16, max: MAX_CHUNK_BYTES },
+            about: "bytes per chunk, a multiple of 8 (Kilian 4.2.2.5: 16, 32, 64, 128)",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "fill",
+            default: "bfs",
+            kind: Kind::Choice(&["bfs", "dense"]),
+            about: "bfs: a breadth-first subtree per chunk (Kilian 4.2.2); dense: one bit field, chunks as rank milestones (Kilian 7.1)",
+            in_label: false,
+        },
+        octree::PARAMS[0],
+        octree::PARAMS[1],
+        octree::PARAMS[2],
+        octree::PARAMS[3],
+    ],
+);
 
 /// Largest chunk accepted (the rank inside a chunk is linear in its words).
 pub const MAX_CHUNK_BYTES: u32 = 4096;

@@ -42,11 +42,38 @@ use crate::chunks::chunk_bfs;
 use crate::{LayoutSpec, Memory};
 use bvhlab_bvh::{Bvh, CostParams};
 use bvhlab_geom::{Aabb, Triangle, Vec3};
+use bvhlab_params::{Kind, Method, ParamSpec};
 use bvhlab_trace::{accept, intersect_triangle, Hit, Ray, RayBox, TraceStats, SLAB_ROBUST};
 use serde::{Deserialize, Serialize};
 
-/// (name, default) of the parameters.
-pub const PARAMS: &[(&str, &str)] = &[("bits", "8"), ("chunk_bytes", "64"), ("frame", "chunk")];
+pub const METHOD: Method = Method::new(
+    "qbvh_chunks",
+    "Kilian 5.2 quantized BVH: bit-field topology in fixed-size chunks, `bits` per box coordinate, frame = chunk root or parent box",
+    "Kilian 2021 5.2",
+    &[
+        ParamSpec {
+            name: "bits",
+            default: "8",
+            kind: Kind::UInt { min: 1, max: 16 },
+            about: "quantization bits per box coordinate (Kilian 5.2.1.1: 8)",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "chunk_bytes",
+            default: "64",
+            kind: Kind::UInt { min: 48, max: MAX_CHUNK_BYTES },
+            about: "bytes per chunk, a multiple of 8: 40-byte header + bit field (Kilian 5.2.1.3: 64 or 128)",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "frame",
+            default: "chunk",
+            kind: Kind::Choice(&["chunk", "parent"]),
+            about: "quantization frame: the chunk root's exact box (Kilian's choice) or the parent's box (5.2.3)",
+            in_label: false,
+        },
+    ],
+);
 
 /// Chunk header: 36 bytes (box + three u32 offsets) padded to 40 = 5 words.
 const HEADER_WORDS: usize = 5;

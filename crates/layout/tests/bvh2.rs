@@ -29,7 +29,7 @@ fn specs_are_validated() {
         .contains("valid: bvh2"));
     assert!(LayoutSpec::parse("bvh2", &raw(&[("bits", "8")]))
         .unwrap_err()
-        .contains("no parameter `bits`"));
+        .contains("unknown parameter `bits` for layout `bvh2`; valid parameters: (none)"));
     let q = LayoutSpec::parse("qbvh_chunks", &raw(&[])).unwrap();
     assert_eq!(q.params_string(), "bits=8,chunk_bytes=64,frame=chunk");
 }

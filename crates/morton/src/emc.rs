@@ -16,6 +16,24 @@
 //! Codes are made by a generic layout coder: any string of axis letters (x, y, z, s) becomes a
 //! code by quantizing each letter's value to as many bits as the letter occurs and depositing the
 //! bits in layout order, through one 256-entry table per (letter, value byte).
+use crate::{BOUNDS, GRID_BITS, GRID_FRAME};
+use bvhlab_params::Method;
+
+pub const EMC64_SORT: Method = Method::new(
+    "emc64-sort",
+    "Extended Morton code, 64 bits, size bit every 4th bit, axes by extent (Vinkler 2017; thesis 3.7.1)",
+    "Vinkler 2017; thesis 3.7.1",
+    &[BOUNDS, GRID_BITS, GRID_FRAME],
+)
+.with_finish(crate::grid_frame_needs_grid);
+
+pub const EMC64_VAR: Method = Method::new(
+    "emc64-var",
+    "Extended Morton code, 64 bits, size bit every 7th bit, others on the largest axis (thesis 3.7.1)",
+    "thesis 3.7.1",
+    &[BOUNDS, GRID_BITS, GRID_FRAME],
+)
+.with_finish(crate::grid_frame_needs_grid);
 
 /// Letter values in layouts.
 pub const X: u8 = 0;

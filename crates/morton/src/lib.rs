@@ -13,6 +13,7 @@ pub mod radix;
 
 use bounds::Frame;
 use bvhlab_geom::{Aabb, Vec3};
+use bvhlab_params::{Kind, ParamSpec, Params, Read};
 use emc::LayoutCoder;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -50,6 +51,17 @@ pub enum AutoFor {
     Ploc,
 }
 
+impl AutoFor {
+    /// The builder's name: `bits=auto` is stored as `auto:<name>`.
+    pub fn name(self) -> &'static str {
+        match self {
+            AutoFor::Aac => "aac",
+            AutoFor::Lbvh => "lbvh",
+            AutoFor::Ploc => "ploc",
+        }
+    }
+}
+
 /// Bits per axis of a plain Morton code.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Bits {
@@ -70,6 +82,72 @@ pub struct EncodeConfig {
 impl Default for EncodeConfig {
     fn default() -> Self {
         EncodeConfig { scheme: Scheme::Morton, bits: Bits::Fixed(10), bounds: BoundsMode::Scene, grid_bits: 0 }
+    }
+}
+
+/// [`EncodeConfig::bounds`] as a parameter of every encoder.
+pub const BOUNDS: ParamSpec = ParamSpec {
+    name: "bounds",
+    default: "scene",
+    kind: Kind::Choice(&["scene", "centroids", "concise"]),
+    about: "quantization frame: scene box, centroid box, or concise bounds (Riemersma eq. 15)",
+    in_label: false,
+};
+
+/// [`EncodeConfig::grid_bits`] as a parameter of every encoder.
+pub const GRID_BITS: ParamSpec = ParamSpec {
+    name: "grid_bits",
+    default: "0",
+    kind: Kind::Choice(&["0", "6", "9", "12"]),
+    about: "occupation grid bits (Riemersma 3.2.2; 0 = off)",
+    in_label: false,
+};
+
+/// [`CellFrame`] as a parameter of every encoder.
+pub const GRID_FRAME: ParamSpec = ParamSpec {
+    name: "grid_frame",
+    default: "cell",
+    kind: Kind::Choice(&["cell", "tight"]),
+    about: "with grid_bits > 0: the in-cell code quantizes the grid cell (cell, Riemersma 3.2.2) or the \
+            bounds of the centroids inside it (tight; bvhlab's extension, not in the papers)",
+    in_label: false,
+};
+
+/// Every encoder's finish rule: `grid_frame` only means something with a grid, so it is kept out
+/// of the key (and the row's encode_params) otherwise, and grid-less encodings keep one spelling.
+pub fn grid_frame_needs_grid(_given: &Params, params: &mut Params) -> Result<(), String> {
+    if params.word("grid_bits") == "0" {
+        if params.word("grid_frame") == "tight" {
+            return Err(
+                "`grid_frame=tight` needs an occupation grid: set grid_bits to 6, 9 or 12".into(),
+            );
+        }
+        params.remove("grid_frame");
+    }
+    Ok(())
+}
+
+impl EncodeConfig {
+    /// From an encoder's canonical parameters; `bits=auto` is for the builder `auto`.
+    pub fn from_params(scheme: Scheme, p: &Params, auto: AutoFor) -> EncodeConfig {
+        let bits = match p.get("bits").map(String::as_str) {
+            // EMC codes have no bits parameter (always 64 bits); the field is not read for them,
+            // and a constant keeps the config (and so the output) independent of the builder.
+            None => Bits::Fixed(10),
+            Some(b) if b.starts_with("auto") => Bits::Auto(auto),
+            Some(b) => Bits::Fixed(b.parse().unwrap_or(10)),
+        };
+        let bounds = match p.word("bounds") {
+            "centroids" => BoundsMode::Centroids,
+            "concise" => BoundsMode::Concise,
+            _ => BoundsMode::Scene,
+        };
+        EncodeConfig {
+            scheme,
+            bits,
+            bounds,
+            grid_bits: p.typed("grid_bits"),
+        }
     }
 }
 
@@ -166,6 +244,16 @@ pub enum CellFrame {
     /// EXTENSION (not in the papers): the bounds of the centroids inside the cell, so a dense
     /// object far from an outlier gets the whole in-cell code however far the outlier is.
     Tight,
+}
+
+impl CellFrame {
+    /// From an encoder's canonical parameters (`grid_frame`).
+    pub fn from_params(p: &Params) -> CellFrame {
+        match p.word("grid_frame") {
+            "tight" => CellFrame::Tight,
+            _ => CellFrame::Lattice,
+        }
+    }
 }
 
 /// Computes the codes of every primitive (in parallel) and sorts them with the parallel radix

@@ -1,7 +1,27 @@
 //! Plain Morton codes (thesis 2.3.4): the centroid is quantized into a lattice of 2^k cells per
 //! axis over the frame and the three k-bit indices are interleaved x1 y1 z1 x2 y2 z2 ...
 //! (x is the most significant bit of each triple). Bit expansion by magic numbers.
-use crate::{AutoFor, Bits};
+use crate::{AutoFor, Bits, BOUNDS, GRID_BITS, GRID_FRAME};
+use bvhlab_params::{Kind, Method, ParamSpec};
+
+pub const METHOD: Method = Method::new(
+    "morton",
+    "Morton code, bits per axis interleaved x y z (thesis 2.3.4)",
+    "thesis 2.3.4",
+    &[
+        ParamSpec {
+            name: "bits",
+            default: "auto",
+            kind: Kind::AutoOrUInt { min: 1, max: 21 },
+            about: "bits per axis; auto = the builder's own choice (aac: ceil(log4 n), lbvh: 10, ploc: 20)",
+            in_label: false,
+        },
+        BOUNDS,
+        GRID_BITS,
+        GRID_FRAME,
+    ],
+)
+.with_finish(crate::grid_frame_needs_grid);
 
 /// Largest number of bits per axis that fits a 64-bit code.
 pub const MAX_BITS: u32 = 21;

@@ -1,7 +1,97 @@
 //! Insertion-based optimization (Bittner, Hapala and Havran 2013; thesis 3.4).
 use crate::search::{find_best, SearchScratch};
 use bvhlab_bvh::dyntree::{DynTree, NONE};
-use crate::{Bvh, CostParams, Optimized};
+use crate::{Bvh, CostParams, Optimized, BUDGET, KEEP_BEST, MAX_PASSES, MAX_SECONDS, SEED};
+use bvhlab_params::{Kind, Method, ParamSpec, Params, Read};
+
+pub const METHOD: Method = Method::new(
+    "ibo",
+    "insertion-based optimization: remove a node's children, reinsert each where the cost grows \
+     least (Bittner et al. 2013; thesis 3.4)",
+    "Bittner et al. 2013; thesis 3.4",
+    &[
+        ParamSpec {
+            name: "measure",
+            default: "comb",
+            kind: Kind::Choice(&["sum", "min", "area", "comb", "random"]),
+            about: "node inefficiency measure selecting the nodes of a pass (Bittner 2013 3.4)",
+            in_label: true,
+        },
+        ParamSpec {
+            name: "ibo_frac",
+            default: "0.01",
+            kind: Kind::PositiveFloat,
+            about: "fraction of the nodes updated per pass (k = 1%; which nodes it counts: ibo_nodes)",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "ibo_nodes",
+            default: "inner",
+            kind: Kind::Choice(&["inner", "all"]),
+            about: "what ibo_frac counts: inner nodes (Bittner 2013 fig. 8, \"1% of inner nodes\") or all \
+                    nodes (thesis 3.4.3, \"1% of nodes\", of which only inner ones are updated)",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "schedule",
+            default: "bittner",
+            kind: Kind::Choice(&["bittner", "thesis"]),
+            about: "termination: bittner = stop after p_T passes without improving the best cost, \
+                    random sampling after p_R of them (Bittner 2013 3.5); thesis = check the cost \
+                    every p_T passes against the previous check, at the first check without \
+                    improvement switch to random sampling checked every p_R passes, stop at its \
+                    first check without improvement and return the last tree (keep_best=false \
+                    unless given; Frantal 2019 3.4.3, what tables 20 and 38 measure)",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "pt",
+            default: "10",
+            kind: Kind::UInt { min: 1, max: 1 << 20 },
+            about: "bittner: stop after p_T passes without improving the cost (Bittner 2013 3.5); \
+                    thesis: passes between the cost checks of the measure stage",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "pr",
+            default: "5",
+            kind: Kind::UInt { min: 0, max: 1 << 20 },
+            about: "bittner: switch to random sampling after p_R passes without improvement; thesis: \
+                    passes between the checks of the random stage (0: no random sampling)",
+            in_label: false,
+        },
+        MAX_PASSES,
+        MAX_SECONDS,
+        BUDGET,
+        KEEP_BEST,
+        SEED,
+    ],
+)
+.with_finish(schedule_rules);
+
+/// p_R <= p_T (Bittner 2013 section 3.5); `schedule = "thesis"` returns the last tree (thesis
+/// 3.4.3, 5.2.1) unless `keep_best` is given.
+fn schedule_rules(given: &Params, params: &mut Params) -> Result<(), String> {
+    if params.word("schedule") == "thesis" {
+        // The thesis' run as a whole (3.4.3, 5.2.1): the last tree, and k = 1% of all nodes;
+        // either can still be set explicitly.
+        if !given.contains_key("keep_best") {
+            params.insert("keep_best".into(), "false".into());
+        }
+        if !given.contains_key("ibo_nodes") {
+            params.insert("ibo_nodes".into(), "all".into());
+        }
+    }
+    let (pt, pr) = (params.typed::<u32>("pt"), params.typed::<u32>("pr"));
+    if pr > pt {
+        return Err(format!("pr={pr} must not exceed pt={pt} (Bittner 2013 3.5: p_R <= p_T)"));
+    }
+    if params.word("measure") == "random" {
+        // Random sampling has nothing to switch to.
+        params.insert("pr".into(), "0".into());
+    }
+    Ok(())
+}
 
 /// Node inefficiency measure used to pick the nodes of a pass (Bittner 2013 section 3.4, thesis
 /// eq. 9-12), or uniform random sampling.
@@ -96,6 +186,26 @@ pub struct IboConfig {
     /// Seed of random sampling.
     pub seed: u64,
     pub cost: CostParams,
+}
+
+impl IboConfig {
+    /// From the canonical parameters of [`METHOD`] and the chain's cost constants.
+    pub fn from_params(p: &Params, cost: CostParams) -> IboConfig {
+        IboConfig {
+            measure: Measure::parse(p.word("measure")).unwrap_or(Measure::Comb),
+            schedule: Schedule::parse(p.word("schedule")).unwrap_or_default(),
+            frac: p.typed::<f64>("ibo_frac") as f32,
+            pt: p.typed("pt"),
+            pr: p.typed("pr"),
+            max_passes: p.typed("max_passes"),
+            max_seconds: p.typed("max_seconds"),
+            budget: p.word("budget") != "off",
+            frac_of_all: p.word("ibo_nodes") == "all",
+            keep_best: p.typed("keep_best"),
+            seed: p.typed::<u32>("seed") as u64,
+            cost,
+        }
+    }
 }
 
 impl Default for IboConfig {

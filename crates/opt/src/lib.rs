@@ -16,7 +16,50 @@ pub mod search;
 
 pub use bvhlab_bvh::{Aabb, Bvh, CostParams};
 pub use bvhlab_geom::rng::SplitMix64;
+use bvhlab_params::{Kind, ParamSpec};
 use serde::{Deserialize, Serialize};
+
+/// Parameters every optimizer shares (`IboConfig` and `KenslerConfig` fields of the same names).
+pub const MAX_PASSES: ParamSpec = ParamSpec {
+    name: "max_passes",
+    default: "0",
+    kind: Kind::UInt { min: 0, max: u32::MAX },
+    about: "stop after this many passes (0 = no limit)",
+    in_label: false,
+};
+
+pub const MAX_SECONDS: ParamSpec = ParamSpec {
+    name: "max_seconds",
+    default: "0",
+    kind: Kind::NonNegativeFloat,
+    about: "stop after this many seconds (0 = no limit); a run stopped by it depends on machine speed",
+    in_label: false,
+};
+
+pub const BUDGET: ParamSpec = ParamSpec {
+    name: "budget",
+    default: "auto",
+    kind: Kind::Choice(&["auto", "off"]),
+    about: "auto: stop after a pass budget derived from the tree size (ibo: 25 updates per inner node; \
+            kensler: 16 log2(nodes) + 64 passes), optimize_stop = pass_budget; off: no budget",
+    in_label: false,
+};
+
+pub const KEEP_BEST: ParamSpec = ParamSpec {
+    name: "keep_best",
+    default: "true",
+    kind: Kind::Choice(&["true", "false"]),
+    about: "return the best tree seen, not the last (fixes the oscillation of thesis 5.2.1)",
+    in_label: false,
+};
+
+pub const SEED: ParamSpec = ParamSpec {
+    name: "seed",
+    default: "1",
+    kind: Kind::UInt { min: 0, max: u32::MAX },
+    about: "seed of the random choices",
+    in_label: false,
+};
 
 /// One optimization pass (Bittner 2013: a batch of k updated nodes; Kensler: one sweep over the
 /// tree). Pass 0 is the input tree before any change (`seconds` 0, `moved` 0).

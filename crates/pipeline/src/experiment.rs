@@ -8,7 +8,7 @@
 //! routed: `bits` would collide with the Morton encoder's), `none` for no layout stage. `[focus]` / `[focuses."SCENE"]` set a focus box.
 use crate::error::{Error, Result};
 use crate::registry::Registry;
-use crate::stages::{check_compact, focus_box, parse_layout, ChainSpec, RaySpec, SceneSource};
+use crate::stages::{check_compact, focus_box, ChainSpec, RaySpec, SceneSource};
 use bvhlab_bvh::{Aabb, CostParams};
 use bvhlab_geom::Vec3;
 use bvhlab_trace::Camera;
@@ -336,7 +336,7 @@ impl Experiment {
                 // `layout = ["none", "qbvh_chunks"]` compares with and without a layout stage.
                 let layout = c.remove("layout").filter(|l| l != "none");
                 if let Some(l) = &layout {
-                    parse_layout(l).map_err(|e| err(e.message().to_string()))?;
+                    registry.parse_layout(l).map_err(|e| err(e.message().to_string()))?;
                 }
                 check_compact(&compact).map_err(|e| err(e.message().to_string()))?;
                 registry

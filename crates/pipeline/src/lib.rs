@@ -13,6 +13,7 @@ pub mod heatmap;
 pub mod key;
 pub mod lockfile;
 pub mod memtrack;
+pub mod methods;
 pub mod plan;
 pub mod registry;
 pub mod row;

@@ -7,7 +7,7 @@ use bvhlab_geom::{LoadError, Scene, Triangle};
 use bvhlab_layout::{bvh2::Bvh2, Layout, LayoutSpec};
 use bvhlab_morton::{AutoFor, Bits, EncodeConfig, Encoding, Scheme};
 use bvhlab_pipeline::registry::{
-    BuilderInfo, Kind, OptimizerInfo, ParamSpec, Resolved, ResolvedOptimizer,
+    BuilderInfo, Kind, Optimizer, OptimizerInfo, ParamSpec, Resolved, ResolvedOptimizer,
 };
 use bvhlab_pipeline::stages::Ops;
 use bvhlab_pipeline::{ChainSpec, Counts, Key, Registry, ResultRow, Runner, Store, Versions};
@@ -173,10 +173,8 @@ fn test_runner(root: &Path, versions: Versions) -> Runner {
         encode: test_encode,
         layout: test_layout,
     };
-    let code_builder = |name, auto| BuilderInfo {
-        codes: Some(auto),
-        collapse: true,
-        ..BuilderInfo::top_down(name, "test double over codes", vec![], test_code_build)
+    let code_builder = |name, auto| {
+        BuilderInfo::top_down(name, "test double over codes", vec![], test_code_build).with_codes(auto)
     };
     r.registry = Registry {
         builders: vec![
@@ -205,20 +203,19 @@ fn test_runner(root: &Path, versions: Versions) -> Runner {
             code_builder("test-codes2", AutoFor::Ploc),
         ],
         encoders: Registry::standard_encoders(),
-        optimizers: vec![OptimizerInfo {
-            name: "test-opt",
-            version: 1,
-            about: "test double: reverses the leaf order `passes` times",
-            params: vec![ParamSpec {
+        optimizers: vec![OptimizerInfo::custom(
+            "test-opt",
+            "test double: reverses the leaf order `passes` times",
+            vec![ParamSpec {
                 name: "passes",
                 default: "2",
                 kind: Kind::UInt { min: 0, max: 9 },
                 about: "",
                 in_label: true,
             }],
-            run: test_optimize,
-            finish: None,
-        }],
+            Optimizer { run: test_optimize },
+        )],
+        layouts: Registry::standard_layouts(),
     };
     r
 }

@@ -132,6 +132,9 @@ fn full_report() {
     for section in ["Pareto", "SAH cost per method", "Traversal steps and intersections", "Heat maps", "Reference comparison", "Results table"] {
         assert!(html.contains(section), "section {section}");
     }
+    // The methods used, with their papers, from the pipeline's method table.
+    assert!(html.contains("<td>sweep-sah</td><td>thesis 3.3.1</td>"), "methods section");
+    assert!(!html.contains("<td>ploc</td>"), "only the methods the rows use");
     assert!(html.contains("rays_sphere_n1000_primary"), "ray plot per ray set");
     assert!(html.contains("rays_sphere_n1000_shadow"));
     assert!(!html.contains("rays_teapot"), "no ray plot without ray metrics");

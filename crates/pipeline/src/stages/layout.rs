@@ -86,86 +86,12 @@ pub fn auto_candidates() -> Vec<String> {
     c
 }
 
-fn split_kv(spec: &str, body: &str) -> Result<BTreeMap<String, String>> {
-    let mut out = BTreeMap::new();
-    for kv in body.split(',') {
-        let (k, v) = kv.split_once('=').ok_or_else(|| {
-            Error::input(format!(
-                "bad layout `{spec}`: `{kv}` is not KEY=VALUE (expected NAME[:k=v,k=v], e.g. qbvh_chunks:chunk_bytes=128,frame=parent)"
-            ))
-        })?;
-        let (k, v) = (k.trim(), v.trim());
-        if k.is_empty() || v.is_empty() {
-            return Err(Error::input(format!(
-                "bad layout `{spec}`: empty key or value in `{kv}`"
-            )));
-        }
-        if out.insert(k.to_string(), v.to_string()).is_some() {
-            return Err(Error::input(format!(
-                "bad layout `{spec}`: `{k}` given twice"
-            )));
-        }
-    }
-    Ok(out)
-}
-
 /// Parses `NAME[:k=v,k=v]` (`bvh2`, `qbvh_chunks:chunk_bytes=128,frame=parent,bits=6`,
-/// `octree_1bit:chunk_bytes=16`, `auto:max_slowdown=1.3,rays=20000`). Unknown names, parameters and bad
-/// values are input errors; defaults are filled in.
+/// `octree_1bit:chunk_bytes=16`, `auto:max_slowdown=1.3,rays=20000`) against the standard layout
+/// table (`crate::methods::layouts`). Unknown names, parameters and bad values are input errors;
+/// defaults are filled in.
 pub fn parse_layout(spec: &str) -> Result<LayoutRequest> {
-    let spec_t = spec.trim();
-    let (name, body) = match spec_t.split_once(':') {
-        Some((n, b)) => (n.trim(), Some(b)),
-        None => (spec_t, None),
-    };
-    let given = match body {
-        Some(b) => split_kv(spec_t, b)?,
-        None => BTreeMap::new(),
-    };
-    if name != "auto" {
-        return LayoutSpec::parse(name, &given)
-            .map(LayoutRequest::Fixed)
-            .map_err(|e| Error::input(format!("bad layout `{spec_t}`: {e}")));
-    }
-    let mut auto = AutoSpec {
-        max_slowdown: AUTO_MAX_SLOWDOWN,
-        rays: AUTO_RAYS,
-        budget: AUTO_BUDGET,
-    };
-    for (k, v) in &given {
-        match k.as_str() {
-            "max_slowdown" => match v.parse::<f64>() {
-                Ok(x) if x.is_finite() && x > 0.0 => auto.max_slowdown = x,
-                _ => {
-                    return Err(Error::input(format!(
-                        "bad layout `{spec_t}`: max_slowdown must be a number > 0, got `{v}`"
-                    )))
-                }
-            },
-            "rays" => match v.parse::<u32>() {
-                Ok(n) if (100..=10_000_000).contains(&n) => auto.rays = n,
-                _ => {
-                    return Err(Error::input(format!(
-                        "bad layout `{spec_t}`: rays must be an integer in 100..=10000000, got `{v}`"
-                    )))
-                }
-            },
-            "budget" => match v.parse::<f64>() {
-                Ok(x) if x.is_finite() && x > 0.0 => auto.budget = x,
-                _ => {
-                    return Err(Error::input(format!(
-                        "bad layout `{spec_t}`: budget must be a number > 0 (multiples of the bvh2 trace of the search's rays), got `{v}`"
-                    )))
-                }
-            },
-            _ => {
-                return Err(Error::input(format!(
-                    "bad layout `{spec_t}`: layout `auto` has no parameter `{k}`; its parameters: max_slowdown, rays, budget"
-                )))
-            }
-        }
-    }
-    Ok(LayoutRequest::Auto(auto))
+    crate::methods::layouts::parse(crate::methods::layouts::standard_table(), spec)
 }
 
 /// One candidate of the auto search as measured.
@@ -450,7 +376,7 @@ mod tests {
             ("auto:max_slowdown=0", "max_slowdown"),
             ("auto:max_slowdown=nan", "max_slowdown"),
             ("auto:rays=5", "rays"),
-            ("auto:budget=0", "budget must be a number > 0"),
+            ("auto:budget=0", "`budget` of layout `auto`: expected a finite number > 0"),
             ("auto:budget=inf", "budget"),
             ("auto:chunk_bytes=64", "chunk_bytes"),
         ] {

@@ -147,6 +147,7 @@ pub fn render(p: &Page) -> String {
                     a href="#heatmaps" { "Heat maps" }
                     a href="#reference" { "Reference comparison" }
                     a href="#results" { "Results table" }
+                    a href="#methods" { "Methods" }
                 }
                 @if p.rows.is_empty() {
                     p.warn { "No results: the experiment produced no rows." }
@@ -174,6 +175,7 @@ pub fn render(p: &Page) -> String {
                 (heatmaps::gallery(&p.heatmaps))
                 (reference::section(p))
                 (tables::results(p.rows))
+                (tables::methods(p.rows))
                 script { (PreEscaped(SCRIPT)) }
             }
         }

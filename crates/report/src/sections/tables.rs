@@ -1,8 +1,9 @@
-//! The results table (collapsed, sortable, filterable), the invalid-chains box and the flags table.
+//! The results table (collapsed, sortable, filterable), the methods used with their papers, the
+//! invalid-chains box and the flags table.
 use super::section;
 use crate::analysis::{method_key, Flag};
 use crate::plots::fmt_num;
-use bvhlab_pipeline::ResultRow;
+use bvhlab_pipeline::{Registry, ResultRow};
 use maud::{html, Markup};
 
 fn opt(v: Option<f64>) -> String {
@@ -77,6 +78,30 @@ pub fn results(rows: &[ResultRow]) -> Markup {
         }
     };
     section("results", &format!("Results table ({} rows)", rows.len()), false, body)
+}
+
+/// The methods the rows use, each with the paper it follows, from the pipeline's method table.
+pub fn methods(rows: &[ResultRow]) -> Markup {
+    let used = |kind: &str, name: &str| {
+        rows.iter().any(|r| match kind {
+            "builder" => r.builder == name,
+            "encoder" => r.encoder.as_deref() == Some(name),
+            "optimizer" => r.optimizer.as_deref() == Some(name),
+            _ => r.layout.as_deref() == Some(name),
+        })
+    };
+    let list: Vec<[&str; 4]> =
+        Registry::standard().catalogue().into_iter().filter(|[kind, name, ..]| used(kind, name)).collect();
+    let body = html! {
+        p { "Every method these results use (" code { "bvhlab methods" } " lists all, with their parameters)." }
+        table {
+            tr { th { "kind" } th { "method" } th { "paper" } th { "what it does" } }
+            @for [kind, name, reference, about] in &list {
+                tr { td { (kind) } td { (name) } td { (reference) } td { (about) } }
+            }
+        }
+    };
+    section("methods", &format!("Methods ({})", list.len()), false, body)
 }
 
 /// Invalid chains: (first row, number of rows) per scene and method key, in row order.

@@ -1,0 +1,161 @@
+//! Builders: one registration line each (the [`Method`](super::Method) comes from the algorithm
+//! file in `crates/builders/src/`; the closure calls it with the resolved parameters).
+use super::{MethodInfo, MethodKind};
+use crate::registry::Resolved;
+use bvhlab_builders::{
+    aac, binned_sah, bonsai, incremental, lbvh, ploc, spatial_median, sweep_sah, SortedCodes,
+};
+use bvhlab_bvh::{Aabb, Bvh, Vec3};
+use bvhlab_morton::AutoFor;
+
+/// Boxes, centres, and (for bottom-up builders) the primitives sorted by code.
+pub type BuildFn = fn(&[Aabb], &[Vec3], Option<&SortedCodes>, &Resolved) -> Bvh;
+
+/// What the pipeline needs to run a builder.
+#[derive(Clone)]
+pub struct Builder {
+    pub run: BuildFn,
+    /// `Some`: the builder consumes sorted codes from the encode stage; an encoder's `bits=auto`
+    /// resolves to this builder's code length.
+    pub codes: Option<AutoFor>,
+    /// The builder returns single-primitive leaves and is followed by the SAH compaction
+    /// (`bvhlab_bvh::collapse`, thesis 3.8 / Bittner 3.6) inside the timed build: the thesis counts
+    /// the compaction as part of AAC / PLOC construction.
+    pub collapse: bool,
+}
+
+impl MethodKind for Builder {
+    const WHAT: &'static str = "builder";
+}
+
+pub type BuilderInfo = MethodInfo<Builder>;
+
+/// The standard builders: one line each (the order of `bvhlab methods`).
+#[rustfmt::skip]
+pub fn standard() -> Vec<BuilderInfo> {
+    vec![
+        top_down(&spatial_median::METHOD, |b, c, _, r| spatial_median::build_in(b, c, &r.config(), r.get("frame"))),
+        top_down(&sweep_sah::METHOD, |b, c, _, r| sweep_sah::build(b, c, &r.config())),
+        // Parallel over the current rayon pool (thesis 3.1.2): the same tree bytes at any thread count.
+        top_down(&binned_sah::METHOD, |b, c, _, r| binned_sah::build_parallel(b, c, r.get("bins"), &r.config(), r.get("centroid_stop"))),
+        top_down(&bonsai::METHOD, |b, c, _, r| bonsai::build(b, c, &bonsai::BonsaiConfig::from_params(&r.params, r.config()))),
+        top_down(&incremental::METHOD, |b, _, _, r| incremental::build(b, &incremental::IncConfig::from_params(&r.params, r.cost))),
+        bottom_up(&lbvh::METHOD, AutoFor::Lbvh, |b, _, s, _| lbvh::build(b, sorted(s))),
+        bottom_up(&aac::METHOD, AutoFor::Aac, |b, _, s, r| aac::build(b, sorted(s), &r.aac_config())),
+        bottom_up(&ploc::METHOD, AutoFor::Ploc, |b, _, s, r| ploc::build(b, sorted(s), &ploc::PlocConfig::from_params(&r.params))),
+    ]
+}
+
+impl Builder {
+    /// A top-down builder over boxes and centres: no codes, no compaction.
+    pub fn over_boxes(run: BuildFn) -> Builder {
+        Builder {
+            run,
+            codes: None,
+            collapse: false,
+        }
+    }
+
+    /// A bottom-up builder over codes sorted for `auto`, followed by the SAH compaction.
+    pub fn over_codes(run: BuildFn, auto: AutoFor) -> Builder {
+        Builder {
+            run,
+            codes: Some(auto),
+            collapse: true,
+        }
+    }
+}
+
+impl BuilderInfo {
+    /// A top-down builder described in place (test doubles).
+    pub fn top_down(
+        name: &'static str,
+        about: &'static str,
+        params: Vec<super::ParamSpec>,
+        run: BuildFn,
+    ) -> BuilderInfo {
+        MethodInfo::custom(name, about, params, Builder::over_boxes(run))
+    }
+
+    /// The same builder over codes sorted for `auto`, followed by the SAH compaction.
+    pub fn with_codes(self, auto: AutoFor) -> BuilderInfo {
+        MethodInfo {
+            kind: Builder::over_codes(self.run, auto),
+            ..self
+        }
+    }
+
+    /// What the build stage produces: the builder, then (bottom-up builders) the SAH compaction.
+    pub fn construct(
+        &self,
+        boxes: &[Aabb],
+        centers: &[Vec3],
+        codes: Option<&SortedCodes>,
+        r: &Resolved,
+    ) -> Bvh {
+        let bvh = (self.run)(boxes, centers, codes, r);
+        if self.collapse {
+            bvhlab_bvh::collapse::collapse(&bvh, r.cost)
+        } else {
+            bvh
+        }
+    }
+}
+
+fn top_down(m: &super::Method, run: BuildFn) -> BuilderInfo {
+    MethodInfo::new(m, Builder::over_boxes(run))
+}
+
+fn bottom_up(m: &super::Method, auto: AutoFor, run: BuildFn) -> BuilderInfo {
+    MethodInfo::new(m, Builder::over_codes(run, auto))
+}
+
+/// The pipeline guarantees codes for code-using builders (`Builder::codes`).
+fn sorted<'a>(s: Option<&'a SortedCodes<'a>>) -> &'a SortedCodes<'a> {
+    s.expect("the pipeline passes sorted codes to every builder with `codes: Some(..)`")
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::registry::tests::raw;
+    use crate::registry::Registry;
+    use bvhlab_builders::aac::AacConfig;
+    use bvhlab_bvh::CostParams;
+
+    #[test]
+    fn aac_presets_share_keys_with_their_values() {
+        let r = Registry::standard();
+        let c = CostParams::default();
+        let hq = r.resolve("aac", &raw(&[("preset", "hq")]), c).unwrap();
+        let explicit = r
+            .resolve("aac", &raw(&[("delta", "20"), ("epsilon", "0.10")]), c)
+            .unwrap();
+        let default = r.resolve("aac", &raw(&[]), c).unwrap();
+        assert_eq!(hq, explicit);
+        assert_eq!(hq, default);
+        assert_eq!(
+            crate::key::params_string(&hq.params),
+            "delta=20,epsilon=0.1"
+        );
+        assert_eq!(r.label(&hq), "aac HQ");
+        let fast = r
+            .resolve("aac", &raw(&[("preset", "fast"), ("delta", "4")]), c)
+            .unwrap();
+        assert_eq!(fast.aac_config(), AacConfig::FAST);
+        assert_eq!(r.label(&fast), "aac fast");
+        let other = r
+            .resolve("aac", &raw(&[("delta", "8"), ("epsilon", "0")]), c)
+            .unwrap();
+        assert_eq!(r.label(&other), "aac delta=8 epsilon=0");
+        let e = r
+            .resolve("aac", &raw(&[("preset", "fast"), ("delta", "20")]), c)
+            .unwrap_err();
+        assert!(
+            e.message().contains("preset=fast sets delta=4") && e.exit_code() == 2,
+            "{e}"
+        );
+        assert!(r.resolve("aac", &raw(&[("delta", "0")]), c).is_err());
+        assert!(r.resolve("aac", &raw(&[("epsilon", "-0.1")]), c).is_err());
+        assert!(r.resolve("aac", &raw(&[("preset", "best")]), c).is_err());
+    }
+}
