@@ -186,6 +186,9 @@ pub fn build(tris: &[Triangle], boxes: &[Aabb], cfg: &EmbreeConfig) -> Result<Pe
     if boxes.is_empty() {
         return Err("no triangles".into());
     }
+    if cfg.quality == Quality::High && tris.len() != boxes.len() {
+        return Err("spatial splits need the triangles of every box".into());
+    }
     let dev = device(cfg.threads.max(1))?;
     let mut prims: Vec<RTCBuildPrimitive> = boxes
         .iter()

@@ -201,6 +201,9 @@ impl Registry {
         cost: CostParams,
     ) -> Result<Resolved> {
         let info = self.get(builder)?;
+        if let Some(Err(how)) = info.peer.map(|p| p.available()) {
+            return Err(Error::input(format!("builder `{builder}`: {how}")));
+        }
         let hint = |k: &str| {
             if info.codes.is_none() && any_has(&self.encoders, k) {
                 format!(

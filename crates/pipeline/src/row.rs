@@ -151,6 +151,19 @@ pub struct ResultRow {
     /// Spread of rays / seconds over the trace runs (derived from `trace_seconds_runs`).
     #[serde(default)]
     pub mrays_per_s_spread: Option<f64>,
+    /// Peer builders (issue 18): the library and version (`Embree 3.13.5`, `obvhs 0.4.0`); absent for
+    /// bvhlab's own builders.
+    #[serde(default)]
+    pub library: Option<String>,
+    /// The peer's own traversal of the same rays (one thread, median of the runs): Mrays/s beside
+    /// bvhlab's `mrays_per_s` on the same tree, its median seconds, and the rays where its hit
+    /// disagrees with bvhlab's exact one (0 expected).
+    #[serde(default)]
+    pub peer_mrays_per_s: Option<f64>,
+    #[serde(default)]
+    pub peer_trace_seconds: Option<f64>,
+    #[serde(default)]
+    pub peer_hit_mismatches: Option<u64>,
     /// Layout stage (Kilian 2021): `bvh2`, `qbvh_chunks`, `octree`, `octree_1bit`; absent without a layout
     /// stage (the measure stage then traces the flat BVH, i.e. bvh2). With `layout=auto` this is the
     /// layout the search picked and `layout_choice` says why.
@@ -258,6 +271,8 @@ impl ResultRow {
             trace_seconds_runs: zr(&self.trace_seconds_runs),
             mrays_per_s: z(self.mrays_per_s),
             mrays_per_s_spread: z(self.mrays_per_s_spread),
+            peer_mrays_per_s: z(self.peer_mrays_per_s),
+            peer_trace_seconds: z(self.peer_trace_seconds),
             layout_seconds: z(self.layout_seconds),
             layout_seconds_spread: z(self.layout_seconds_spread),
             layout_seconds_runs: zr(&self.layout_seconds_runs),

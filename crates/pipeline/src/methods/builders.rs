@@ -7,6 +7,7 @@ use bvhlab_builders::{
 };
 use bvhlab_bvh::{Aabb, Bvh, Vec3};
 use bvhlab_morton::AutoFor;
+use bvhlab_peers::Peer;
 
 /// Boxes, centres, and (for bottom-up builders) the primitives sorted by code.
 pub type BuildFn = fn(&[Aabb], &[Vec3], Option<&SortedCodes>, &Resolved) -> Bvh;
@@ -22,6 +23,9 @@ pub struct Builder {
     /// (`bvhlab_bvh::collapse`, thesis 3.8 / Bittner 3.6) inside the timed build: the thesis counts
     /// the compaction as part of AAC / PLOC construction.
     pub collapse: bool,
+    /// A production library's builder (crates/peers): the build stage calls it with the scene's
+    /// triangles and times the library's own call; its traversal runs beside bvhlab's in measure.
+    pub peer: Option<Peer>,
 }
 
 impl MethodKind for Builder {
@@ -43,7 +47,25 @@ pub fn standard() -> Vec<BuilderInfo> {
         bottom_up(&lbvh::METHOD, AutoFor::Lbvh, |b, _, s, _| lbvh::build(b, sorted(s))),
         bottom_up(&aac::METHOD, AutoFor::Aac, |b, _, s, r| aac::build(b, sorted(s), &r.aac_config())),
         bottom_up(&ploc::METHOD, AutoFor::Ploc, |b, _, s, r| ploc::build(b, sorted(s), &ploc::PlocConfig::from_params(&r.params))),
+        // Production libraries (issue 18): Embree 3 where installed, obvhs always.
+        peer(Peer::EmbreeMorton, |b, _, _, r| peer_run(Peer::EmbreeMorton, b, r)),
+        peer(Peer::EmbreeBinned, |b, _, _, r| peer_run(Peer::EmbreeBinned, b, r)),
+        peer(Peer::EmbreeSbvh, |b, _, _, r| peer_run(Peer::EmbreeSbvh, b, r)),
+        peer(Peer::Obvhs, |b, _, _, r| peer_run(Peer::Obvhs, b, r)),
     ]
+}
+
+fn peer(p: Peer, run: BuildFn) -> BuilderInfo {
+    MethodInfo::new(p.method(), Builder { peer: Some(p), ..Builder::over_boxes(run) })
+}
+
+/// A peer over boxes only (tests, examples): the build stage goes through [`Peer::build`] with
+/// the triangles instead, and reports a library's failure as that peer's error.
+fn peer_run(p: Peer, boxes: &[Aabb], r: &Resolved) -> Bvh {
+    match p.build(&[], boxes, &r.params, r.cost.c_t, r.cost.c_i) {
+        Ok(b) => b.bvh,
+        Err(e) => panic!("{}: {e}", p.method().name),
+    }
 }
 
 impl Builder {
@@ -53,6 +75,7 @@ impl Builder {
             run,
             codes: None,
             collapse: false,
+            peer: None,
         }
     }
 
@@ -62,6 +85,7 @@ impl Builder {
             run,
             codes: Some(auto),
             collapse: true,
+            peer: None,
         }
     }
 }

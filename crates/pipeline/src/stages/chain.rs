@@ -303,6 +303,17 @@ pub(crate) fn row(rt: &mut Runner, plan: &Plan, experiment: &str) -> Result<Resu
                 0.0
             }
         }),
+        library: rt.registry.get(&plan.resolved.builder).ok().and_then(|b| b.peer).map(|p| p.library()),
+        peer_mrays_per_s: measure.as_ref().and_then(|x| x.peer.as_ref()).map(|p| {
+            let rays = measure.as_ref().map_or(0, |x| x.rays) as f64;
+            if p.median_seconds > 0.0 {
+                rays / p.median_seconds / 1e6
+            } else {
+                0.0
+            }
+        }),
+        peer_trace_seconds: measure.as_ref().and_then(|x| x.peer.as_ref()).map(|p| p.median_seconds),
+        peer_hit_mismatches: measure.as_ref().and_then(|x| x.peer.as_ref()).map(|p| p.hit_mismatches),
         heatmap: measure
             .as_ref()
             .and_then(|x| x.heatmap.as_ref())

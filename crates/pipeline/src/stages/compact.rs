@@ -56,7 +56,7 @@ impl Stage for Compact {
         let input = bvh_of(rt, plan, node.inputs[0].0)?;
         let (ops, cost) = (rt.ops, plan.resolved.cost);
         let art = repeat_bvh(&ops, plan, node, &boxes, false, || {
-            (ops.collapse)(&input.bvh, cost)
+            Ok(((ops.collapse)(&input.bvh, cost), None))
         })?;
         Ok((art, Files::new()))
     }

@@ -138,6 +138,23 @@ pub struct MeasureSummary {
     pub extra_box_hits_per_ray: Option<f64>,
     #[serde(default)]
     pub extra_tests_per_ray: Option<f64>,
+    /// A peer builder's own traversal of the same rays (obvhs: of the same tree; Embree: of its
+    /// scene committed at the same build quality), one thread, `repeat` runs.
+    #[serde(default)]
+    pub peer: Option<PeerMeasure>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PeerMeasure {
+    /// Library and version, e.g. `Embree 3.13.5`.
+    pub library: String,
+    pub seconds: Vec<f64>,
+    pub median_seconds: f64,
+    /// Untimed set-up of the traversal (Embree's scene commit).
+    pub setup_seconds: f64,
+    /// Rays whose peer hit disagrees with bvhlab's exact one (another triangle at a t more than
+    /// 1e-4 relative away, or a hit against a miss): the oracle check of the peer's traversal.
+    pub hit_mismatches: u64,
 }
 
 /// Per-run slowdowns of alternated runs: `layout[i] / bvh2[i]` (run i of each side were timed
@@ -279,6 +296,10 @@ impl Stage for Measure {
             }
         }
         let st = first.ok_or_else(|| Error::internal("repeat = 0"))?;
+        let peer = match rt.registry.get(&plan.resolved.builder)?.peer {
+            Some(p) => Some(peer_measure(p, bvh, tris, &rays, &st.hits, plan)?),
+            None => None,
+        };
         // Accuracy of compression: against the uncompressed layout of the same topology (untimed).
         let extras = layout
             .as_ref()
@@ -319,9 +340,42 @@ impl Stage for Measure {
             bvh2_seconds: layout.as_ref().map(|_| bvh2_seconds),
             extra_box_hits_per_ray: extras.map(|e| e.0),
             extra_tests_per_ray: extras.map(|e| e.1),
+            peer,
         };
         Ok((m, files))
     }
+}
+
+/// The peer's own traversal, `repeat` times, checked against bvhlab's exact hits.
+fn peer_measure(
+    p: bvhlab_peers::Peer,
+    bvh: &bvhlab_bvh::Bvh,
+    tris: &[bvhlab_geom::Triangle],
+    rays: &[bvhlab_trace::Ray],
+    ours: &[bvhlab_trace::Hit],
+    plan: &Plan,
+) -> Result<PeerMeasure> {
+    let fail = |e: String| Error::input(format!("{} traversal on {}: {e}", p.method().name, plan.spec.scene));
+    let mut seconds = Vec::new();
+    let mut first = None;
+    for _ in 0..plan.spec.repeat {
+        let t = p.trace(bvh, tris, rays).map_err(fail)?;
+        seconds.push(t.seconds);
+        first.get_or_insert(t);
+    }
+    let t = first.ok_or_else(|| Error::internal("repeat = 0"))?;
+    let hit_mismatches = ours
+        .iter()
+        .zip(&t.hits)
+        .filter(|(o, h)| !bvhlab_peers::hits_agree(o, h, 1e-4))
+        .count() as u64;
+    Ok(PeerMeasure {
+        library: p.library(),
+        median_seconds: median(&seconds),
+        seconds,
+        setup_seconds: t.setup_seconds,
+        hit_mismatches,
+    })
 }
 
 #[cfg(test)]

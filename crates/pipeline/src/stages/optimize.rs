@@ -65,7 +65,7 @@ impl Stage for Optimize {
                 stop: out.stop.as_str().to_string(),
                 returned_pass: out.returned_pass,
             });
-            out.bvh
+            Ok((out.bvh, None))
         })?;
         let info = info.ok_or_else(|| Error::internal("repeat = 0"))?;
         let mut files = Files::new();
