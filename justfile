@@ -16,6 +16,10 @@ test:
 report EXP="experiments/quick.toml":
     cargo run --release -- sweep {{EXP}} --report-only
 
+# bvhlab's builders beside Embree 3 and obvhs as methods of one sweep (one thread), with the ratios table.
+peers:
+    cargo run --release -- sweep experiments/peers.toml --threads 1
+
 # Builder speed and SAH cost beside Embree (../shared/tools/embree-anchor) in the same run.
 bench SCENE="../shared/scenes/stanford_dragon.obj.gz":
     bash scripts/bench-builders.sh {{SCENE}}

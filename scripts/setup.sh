@@ -8,6 +8,8 @@ pkg-config --exists fontconfig 2>/dev/null || need+=(libfontconfig1-dev)
 ls /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf >/dev/null 2>&1 || need+=(fonts-dejavu-core)
 # The report is checked in headless Chromium (crates/cli/tests/browser.rs): images, links, scripts.
 command -v chromium >/dev/null 2>&1 || need+=(chromium)
+# Embree 3 for the peer builders (crates/peers): linked wherever libembree3.so is found at build time.
+[ -e /usr/include/embree3/rtcore.h ] || need+=(libembree-dev)
 if [ ${#need[@]} -gt 0 ]; then
   if [ "$(id -u)" = 0 ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}" >/dev/null

@@ -235,6 +235,16 @@ pub fn write_report_with(
         Section::new("rays", "Traversal steps and intersections per ray", "Per scene and ray set, for chains with a measure stage.", rays),
         sweep_section,
     ];
+    if rows.iter().any(|r| r.library.is_some()) {
+        let mut peers = Section::new(
+            "peers",
+            "bvhlab vs production libraries",
+            "Embree 3 and obvhs run as builders inside the sweep (crates/peers): same boxes, same cost model,              same rays and oracle; their trees are imported into bvhlab's BVH, and their points are the              triangles on the Pareto charts.",
+            Vec::new(),
+        );
+        peers.extra = sections::peers::table(rows);
+        sections.push(peers);
+    }
     sections.extend(optimization_section);
     sections.extend(layouts_section);
     let cost_flags = analysis::flags(rows);

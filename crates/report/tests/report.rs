@@ -348,7 +348,7 @@ fn dense_plots_have_no_overlapping_labels() {
     }
     // Identical points (layouts of one build used to stack on the build's point).
     for i in 0..4 {
-        points.push(pareto::ParetoPoint { label: format!("same {i}"), method_index: 0, seconds: 2e-3, sah_cost: 9.0, seconds_range: None });
+        points.push(pareto::ParetoPoint { label: format!("same {i}"), method_index: 0, seconds: 2e-3, sah_cost: 9.0, seconds_range: None, peer: false });
     }
     let fig = pareto::ParetoFigure {
         scene: "dense".into(),

@@ -42,6 +42,8 @@ pub struct ParetoPoint {
     pub sah_cost: f64,
     /// Fastest and slowest of the timed runs (an error bar); None with one run.
     pub seconds_range: Option<(f64, f64)>,
+    /// A production library's builder (issue 18): drawn as a triangle, not a circle.
+    pub peer: bool,
 }
 
 pub struct ParetoFigure {
@@ -236,9 +238,15 @@ impl ParetoFigure {
             let c = color(p.method_index);
             let style = if on_front[k] { c.filled() } else { c.stroke_width(2) };
             let radius = if on_front[k] { 7 } else { 5 };
-            chart
-                .draw_series(std::iter::once(Circle::new((p.seconds, p.sah_cost), radius, style)))
-                .map_err(err)?;
+            if p.peer {
+                chart
+                    .draw_series(std::iter::once(TriangleMarker::new((p.seconds, p.sah_cost), radius + 2, style)))
+                    .map_err(err)?;
+            } else {
+                chart
+                    .draw_series(std::iter::once(Circle::new((p.seconds, p.sah_cost), radius, style)))
+                    .map_err(err)?;
+            }
             if on_front[k] {
                 chart
                     .draw_series(std::iter::once(Circle::new(
@@ -257,6 +265,13 @@ impl ParetoFigure {
             .map_err(err)?
             .label("filled, ringed: on the front")
             .legend(|(x, y)| Circle::new((x + 10, y), 5, BLACK.filled()));
+        if pts.iter().any(|p| p.peer) {
+            chart
+                .draw_series(std::iter::empty::<Circle<(f64, f64), i32>>())
+                .map_err(err)?
+                .label("triangle: production library (Embree, obvhs)")
+                .legend(|(x, y)| TriangleMarker::new((x + 10, y), 7, BLACK.stroke_width(2)));
+        }
         chart
             .configure_series_labels()
             .position(SeriesLabelPosition::UpperRight)

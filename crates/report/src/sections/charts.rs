@@ -74,6 +74,7 @@ pub fn per_scene(
                         seconds: analysis::total_build_seconds(r),
                         seconds_range: analysis::total_build_range(r),
                         sah_cost: if focus { r.focus_sah_cost.unwrap_or(f64::NAN) } else { r.sah_cost },
+                        peer: r.library.is_some(),
                     })
                     .collect(),
             };

@@ -10,6 +10,7 @@ pub mod heatmaps;
 pub(crate) mod layouts;
 pub(crate) mod notices;
 pub(crate) mod optimization;
+pub mod peers;
 pub mod reference;
 pub mod summary;
 pub(crate) mod sweeps;
