@@ -20,6 +20,10 @@ report EXP="experiments/quick.toml":
 peers:
     cargo run --release -- sweep experiments/peers.toml --threads 1
 
+# Peer builds inside bvhlab (embree-morton, embree-binned) against embree-anchor, alternated, with ratios.
+bench-peers RUNS="5" ROUNDS="2":
+    bash scripts/bench-peers.sh {{RUNS}} {{ROUNDS}}
+
 # Builder speed and SAH cost beside Embree (../shared/tools/embree-anchor) in the same run.
 bench SCENE="../shared/scenes/stanford_dragon.obj.gz":
     bash scripts/bench-builders.sh {{SCENE}}
