@@ -57,8 +57,9 @@ unsafe extern "C" fn create_leaf(
     n: usize,
     _: *mut c_void,
 ) -> *mut c_void {
-    let p = rtcThreadLocalAlloc(a, std::mem::size_of::<ENode>(), 16) as *mut ENode;
-    let ids = rtcThreadLocalAlloc(a, 4 * n.max(1), 4) as *mut u32;
+    // One allocation per leaf (as the anchor's one per node): the ids follow the node.
+    let p = rtcThreadLocalAlloc(a, std::mem::size_of::<ENode>() + 4 * n, 16) as *mut ENode;
+    let ids = p.add(1) as *mut u32;
     for i in 0..n {
         *ids.add(i) = (*prims.add(i)).primID;
     }
