@@ -26,6 +26,7 @@ pub mod lbvh;
 pub mod ploc;
 pub(crate) mod primref;
 pub(crate) mod simd_box;
+pub mod sbvh;
 pub mod spatial_median;
 pub mod sorted;
 pub mod sweep_sah;

@@ -7,11 +7,18 @@ use crate::{Bvh, CostParams, Node};
 /// repeatedly up a branch, as the thesis notes. Works on any BVH. Returns a compacted copy whose
 /// nodes are renumbered depth-first with siblings adjacent and whose leaf ranges are contiguous in
 /// traversal order.
+///
+/// A BVH with repeated references (SBVH, Stich et al. 2009: a triangle clipped into several
+/// leaves) collapses too: a collapsed leaf holds each triangle once (its box, the subtree's, covers
+/// every clipped part), and its cost counts distinct triangles (exactly for subtrees of up to
+/// [`DISTINCT_CAP`] references, else their reference count, an upper bound: such subtrees collapse
+/// slightly less eagerly, never wrongly).
 pub fn collapse(bvh: &Bvh, cost: CostParams) -> Bvh {
     let n = bvh.nodes.len();
     if n == 0 {
         return bvh.clone();
     }
+    let repeats = has_repeats(&bvh.prim_indices);
     let (c_t, c_i) = (cost.c_t as f64, cost.c_i as f64);
     // Children always have larger indices than parents in every layout we produce? Not guaranteed
     // for all layouts, so compute a post-order explicitly.
@@ -28,6 +35,9 @@ pub fn collapse(bvh: &Bvh, cost: CostParams) -> Bvh {
     let mut sub_cost = vec![0f64; n];
     let mut count = vec![0u32; n];
     let mut make_leaf = vec![false; n];
+    // Repeated references: the sorted distinct triangles of each subtree (small subtrees only),
+    // dropped once the parent has merged them.
+    let mut distinct: Vec<Option<Vec<u32>>> = if repeats { vec![None; n] } else { Vec::new() };
     for &i in order.iter().rev() {
         let nd = &bvh.nodes[i as usize];
         let sa = nd.bounds.area_f64();
@@ -36,9 +46,23 @@ pub fn collapse(bvh: &Bvh, cost: CostParams) -> Bvh {
             count[i] = nd.count;
             sub_cost[i] = c_i * sa * nd.count as f64;
             make_leaf[i] = true;
+            if repeats {
+                let mut v = bvh.prim_indices[nd.first as usize..(nd.first + nd.count) as usize].to_vec();
+                v.sort_unstable();
+                distinct[i] = Some(v);
+            }
         } else {
             let (l, r) = (nd.first as usize, nd.first as usize + 1);
             count[i] = count[l] + count[r];
+            if repeats {
+                if let (Some(a), Some(b)) = (distinct[l].take(), distinct[r].take()) {
+                    let m = merge_distinct(&a, &b);
+                    count[i] = m.len() as u32;
+                    if m.len() <= DISTINCT_CAP {
+                        distinct[i] = Some(m);
+                    }
+                }
+            }
             let as_inner = c_t * sa + sub_cost[l] + sub_cost[r];
             let as_leaf = c_i * sa * count[i] as f64;
             if as_leaf < as_inner {
@@ -72,7 +96,21 @@ pub fn collapse(bvh: &Bvh, cost: CostParams) -> Bvh {
                     gather.push(gn.first);
                 }
             }
-            out.nodes[slot as usize] = Node::leaf(nd.bounds, first, count[old as usize]);
+            if repeats {
+                // Keep each triangle's first reference (left to right).
+                let mut seen = std::collections::HashSet::new();
+                let mut k = first as usize;
+                for j in first as usize..out.prim_indices.len() {
+                    let p = out.prim_indices[j];
+                    if seen.insert(p) {
+                        out.prim_indices[k] = p;
+                        k += 1;
+                    }
+                }
+                out.prim_indices.truncate(k);
+            }
+            let count = out.prim_indices.len() as u32 - first;
+            out.nodes[slot as usize] = Node::leaf(nd.bounds, first, count);
         } else {
             let left = out.nodes.len() as u32;
             out.nodes.push(bvh.nodes[nd.first as usize]);
@@ -83,5 +121,42 @@ pub fn collapse(bvh: &Bvh, cost: CostParams) -> Bvh {
             work.push((nd.first, left));
         }
     }
+    out
+}
+
+/// Subtrees with more references than this keep their reference count as the collapse count
+/// (see [`collapse`]); sets up to it are merged exactly.
+pub const DISTINCT_CAP: usize = 4096;
+
+/// Whether some triangle index occurs twice (only the SBVH builds such trees).
+pub fn has_repeats(prims: &[u32]) -> bool {
+    let max = prims.iter().copied().max().map_or(0, |m| m as usize + 1);
+    let mut seen = vec![false; max];
+    prims.iter().any(|&p| std::mem::replace(&mut seen[p as usize], true))
+}
+
+/// The sorted union of two sorted sets.
+fn merge_distinct(a: &[u32], b: &[u32]) -> Vec<u32> {
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        match a[i].cmp(&b[j]) {
+            std::cmp::Ordering::Less => {
+                out.push(a[i]);
+                i += 1;
+            }
+            std::cmp::Ordering::Greater => {
+                out.push(b[j]);
+                j += 1;
+            }
+            std::cmp::Ordering::Equal => {
+                out.push(a[i]);
+                i += 1;
+                j += 1;
+            }
+        }
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
     out
 }

@@ -9,7 +9,7 @@ pub mod validate;
 
 pub use bvhlab_geom::{Aabb, Vec3};
 pub use metrics::{metrics, CostParams, Metrics};
-pub use validate::validate;
+pub use validate::{validate, validate_refs, validate_split, Refs};
 use serde::{Deserialize, Serialize};
 
 /// A 32-byte node: 24 bytes of box, then two u32.

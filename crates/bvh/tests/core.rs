@@ -107,3 +107,52 @@ proptest! {
         prop_assert_eq!(collapse(&c, cost), c);
     }
 }
+
+/// A long box [0, 2] split at x = 1 into two leaves (SBVH), plus a small box in the right leaf.
+fn split_tree() -> (Bvh, Vec<Aabb>) {
+    let long = Aabb::new(Vec3::new(0.0, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0));
+    let small = Aabb::new(Vec3::new(1.5, 0.0, 0.0), Vec3::new(1.6, 0.1, 0.1));
+    let left = Aabb::new(Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 1.0, 1.0));
+    let right = Aabb::new(Vec3::new(1.0, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0));
+    let bvh = Bvh {
+        nodes: vec![Node::inner(long, 1), Node::leaf(left, 0, 1), Node::leaf(right, 1, 2)],
+        prim_indices: vec![0, 0, 1],
+    };
+    (bvh, vec![long, small])
+}
+
+#[test]
+fn validate_split_allows_clipped_repeats_and_catches_gaps() {
+    use bvhlab_bvh::validate_split;
+    let (bvh, boxes) = split_tree();
+    assert!(validate(&bvh, &boxes).is_err(), "exactly-once validation rejects repeats");
+    validate_split(&bvh, &boxes).unwrap();
+    // A gap: the right leaf ends at 1.9, so x in (1.9, 2] of triangle 0 is in no leaf box. (The
+    // check is on the union of the parts' boxes: a gap between two parts is the oracle's to find.)
+    let mut gap = bvh.clone();
+    gap.nodes[2].bounds.max.x = 1.9;
+    assert!(validate_split(&gap, &boxes).unwrap_err().contains("do not cover"));
+    // Twice in one leaf.
+    let mut twice = bvh.clone();
+    twice.prim_indices = vec![0, 0, 0];
+    assert!(validate_split(&twice, &boxes).is_err());
+    // Triangle 1 never referenced.
+    let mut missing = bvh.clone();
+    missing.prim_indices = vec![0, 0, 0];
+    missing.nodes[2].count = 1;
+    missing.prim_indices.truncate(2);
+    assert!(validate_split(&missing, &boxes).unwrap_err().contains("not referenced"));
+}
+
+#[test]
+fn collapse_keeps_each_triangle_once_per_leaf() {
+    let (bvh, boxes) = split_tree();
+    // Costs make the root a leaf: traversal is expensive, intersection cheap.
+    let c = CostParams { c_t: 100.0, c_i: 0.01 };
+    let out = collapse(&bvh, c);
+    assert_eq!(out.nodes.len(), 1);
+    assert_eq!(out.prim_indices, vec![0, 1]);
+    validate(&out, &boxes).unwrap();
+    // Cheap traversal keeps the split.
+    assert_eq!(collapse(&bvh, CostParams { c_t: 0.01, c_i: 100.0 }), bvh);
+}

@@ -18,8 +18,7 @@ fn peers_run_as_builders_with_their_own_traversal() {
             c.repeat = 2;
             c.rays = Some(RaySpec::Random { count: 4000 });
             let row = r.run_chain(&c, "t").unwrap();
-            let splits = name == "embree-sbvh";
-            assert!(row.valid || splits, "{name} on {scene}: {}", row.method);
+            assert!(row.valid, "{name} on {scene}: {}", row.method);
             assert!(row.library.is_some(), "{name}");
             assert!(row.build_seconds > 0.0 && row.sah_cost > 1.0, "{name}");
             assert_eq!(row.peer_hit_mismatches, Some(0), "{name} on {scene}");
@@ -61,7 +60,7 @@ fn peers_on_stress_scenes() {
             let mut c = ChainSpec::new(scene, name);
             c.repeat = 1;
             match r.run_chain(&c, "t") {
-                Ok(row) => assert!(row.valid || name == "embree-sbvh", "{name} on {scene}: {}", row.method),
+                Ok(row) => assert!(row.valid, "{name} on {scene}: {}", row.method),
                 Err(e) => assert!(e.message().contains(name), "{name} on {scene}: {e}"),
             }
         }

@@ -10,7 +10,7 @@ use super::optimize::Optimize;
 use super::Ops;
 use crate::error::{Error, Result};
 use crate::run::{secs, Files, Node, Runner, Stage, Timing};
-use bvhlab_bvh::{Aabb, Bvh, Metrics};
+use bvhlab_bvh::{Aabb, Bvh, Metrics, Refs};
 use bvhlab_geom::stats::median;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -71,6 +71,7 @@ pub(crate) fn repeat_bvh(
     plan: &Plan,
     node: &Node,
     boxes: &[Aabb],
+    refs: Refs,
     time_capped: bool,
     mut run: impl FnMut() -> Result<(Bvh, Option<f64>)>,
 ) -> Result<BvhArtifact> {
@@ -99,7 +100,7 @@ pub(crate) fn repeat_bvh(
     }
     let (bvh, hash) = first.ok_or_else(|| Error::internal("repeat = 0"))?;
     let metrics = (ops.metrics)(&bvh, cost);
-    let validation = (ops.validate)(&bvh, boxes);
+    let validation = (ops.validate)(&bvh, boxes, refs);
     let summary = BvhSummary {
         metrics,
         valid: validation.is_ok(),
@@ -156,7 +157,7 @@ impl Stage for Build {
         }
         let (ops, cost) = (rt.ops, plan.resolved.cost);
         // Bottom-up builders include their SAH compaction (thesis: part of AAC / PLOC).
-        let art = repeat_bvh(&ops, plan, node, &boxes, false, || {
+        let art = repeat_bvh(&ops, plan, node, &boxes, info.refs, false, || {
             if let Some(peer) = info.peer {
                 // The library's own call is timed (not the import); its failure is this peer's.
                 return peer
@@ -164,7 +165,10 @@ impl Stage for Build {
                     .map(|b| (b.bvh, Some(b.seconds)))
                     .map_err(|e| Error::input(format!("{} on {}: {e}", info.name, plan.spec.scene)));
             }
-            let bvh = (info.run)(&boxes, &centers, codes.as_ref(), &plan.resolved);
+            let bvh = match info.triangles {
+                Some(run) => run(&scene.triangles, &plan.resolved),
+                None => (info.run)(&boxes, &centers, codes.as_ref(), &plan.resolved),
+            };
             Ok((
                 if info.collapse {
                     (ops.collapse)(&bvh, cost)
