@@ -57,6 +57,22 @@ outliers:
 kilian:
     cargo run --release -- sweep experiments/kilian-chunks.toml
 
+# Trace throughput, 1 thread, 10^6 random rays of the anchors' kind: bvhlab bvh2, bvh4, bvh8 (and bvh8 on
+# 2 threads) beside Embree rtcIntersect1 and tinybvh BVH8_CPU run in the same invocation, with the ratios
+# (issue 19). Scenes: stanford_dragon, conference, breakfast_room, stanford_bunny when present.
+bench-trace RUNS="3" *SCENES="":
+    #!/usr/bin/env bash
+    set -euo pipefail
+    scenes="{{SCENES}}"
+    if [ -z "$scenes" ]; then
+        for s in stanford_dragon conference breakfast_room stanford_bunny; do
+            f=../shared/scenes/$s.obj.gz
+            if [ -f "$f" ]; then scenes="$scenes $f"; else echo "skipping $s: $f not found" >&2; fi
+        done
+    fi
+    echo "# uptime: $(uptime)"
+    cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --tools ../shared/tools $scenes
+
 # The Morton-family speed targets with PASS/MISS, beside Embree, in one run.
 bench-morton RUNS="5":
     bash scripts/bench-builders.sh morton {{RUNS}}

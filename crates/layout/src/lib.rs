@@ -6,7 +6,8 @@
 //!   breadth-first bit field in fixed-size chunks (rank/popcount addressing), node info outside
 //!   the chunks, an exact box per chunk root; quantization `frame` = parent box or chunk-root box;
 //! - `octree`: Kilian 4.1: 32-bit nodes, implicit boxes, primitive references may repeat;
-//! - `octree_1bit`: Kilian 4.2: the same octree as a 1-bit breadth-first bit field in chunks.
+//! - `octree_1bit`: Kilian 4.2: the same octree as a 1-bit breadth-first bit field in chunks;
+//! - `bvh4`, `bvh8`: the BVH collapsed into 4-/8-wide nodes (Wald et al. 2008), SoA boxes, SIMD box tests.
 //!
 //! Every layout must find exactly the closest hit brute force finds (conservative boxes, the shared
 //! triangle test and tie rule of `bvhlab_trace`). Algorithms here are plain functions over slices:
@@ -16,6 +17,7 @@ pub mod chunks;
 pub mod octree;
 pub mod octree_1bit;
 pub mod qbvh_chunks;
+pub mod wide;
 
 use bvhlab_bvh::{Bvh, CostParams, Refs};
 use bvhlab_geom::Triangle;
@@ -27,10 +29,24 @@ use std::collections::BTreeMap;
 /// The layouts as they describe themselves (name, paper reference, typed parameters): the
 /// pipeline's method table lists these (and adds `auto`, a search over them). A new layout adds its
 /// entry here and its arms to the dispatches below.
-pub const METHODS: [&Method; 4] = [&bvh2::METHOD, &qbvh_chunks::METHOD, &octree::METHOD, &octree_1bit::METHOD];
+pub const METHODS: [&Method; 6] = [
+    &bvh2::METHOD,
+    &qbvh_chunks::METHOD,
+    &octree::METHOD,
+    &octree_1bit::METHOD,
+    &wide::METHOD4,
+    &wide::METHOD8,
+];
 
 /// Layout names accepted by `build`.
-pub const LAYOUTS: [&str; 4] = [METHODS[0].name, METHODS[1].name, METHODS[2].name, METHODS[3].name];
+pub const LAYOUTS: [&str; 6] = [
+    METHODS[0].name,
+    METHODS[1].name,
+    METHODS[2].name,
+    METHODS[3].name,
+    METHODS[4].name,
+    METHODS[5].name,
+];
 
 /// What a layout costs in memory. "Topology" is Kilian's *size of topology* (6.2): everything
 /// traversal reads at every step (nodes; chunks + node info), not the leaf arrays
@@ -152,6 +168,8 @@ pub enum Layout {
     QbvhChunks(qbvh_chunks::QbvhChunks),
     Octree(octree::Octree),
     Octree1Bit(octree_1bit::Octree1Bit),
+    /// `bvh4` or `bvh8` (by its width).
+    Wide(wide::WideBvh),
 }
 
 /// Start of the error of a build given up at its deadline (`build_until`).
@@ -174,6 +192,8 @@ pub fn build_until(
 ) -> Result<Layout, String> {
     Ok(match spec.name.as_str() {
         "bvh2" => Layout::Bvh2(bvh2::Bvh2::build(bvh)),
+        "bvh4" => Layout::Wide(wide::WideBvh::build(bvh, 4)?),
+        "bvh8" => Layout::Wide(wide::WideBvh::build(bvh, 8)?),
         "qbvh_chunks" => Layout::QbvhChunks(qbvh_chunks::QbvhChunks::build(bvh, &qbvh_chunks::Config::from_spec(spec)?)?),
         "octree" => Layout::Octree(octree::Octree::build_until(
             tris,
@@ -197,7 +217,7 @@ pub fn build_until(
 /// Whether a layout's structure depends on the input BVH (octrees are built from the scene alone,
 /// so the pipeline keys them by the scene only).
 pub fn uses_bvh(name: &str) -> bool {
-    matches!(name, "bvh2" | "qbvh_chunks")
+    matches!(name, "bvh2" | "qbvh_chunks" | "bvh4" | "bvh8")
 }
 
 impl Layout {
@@ -207,6 +227,8 @@ impl Layout {
             Layout::QbvhChunks(_) => "qbvh_chunks",
             Layout::Octree(_) => "octree",
             Layout::Octree1Bit(_) => "octree_1bit",
+            Layout::Wide(w) if w.width == 4 => "bvh4",
+            Layout::Wide(_) => "bvh8",
         }
     }
 
@@ -216,6 +238,7 @@ impl Layout {
             Layout::QbvhChunks(l) => l.memory(),
             Layout::Octree(l) => l.memory(),
             Layout::Octree1Bit(l) => l.memory(),
+            Layout::Wide(l) => l.memory(),
         }
     }
 
@@ -227,6 +250,18 @@ impl Layout {
             Layout::QbvhChunks(l) => l.trace(tris, rays),
             Layout::Octree(l) => l.trace(tris, rays),
             Layout::Octree1Bit(l) => l.trace(tris, rays),
+            Layout::Wide(l) => l.trace(tris, rays),
+        }
+    }
+
+    /// The layout prepared for timing (triangles copied into leaf-slot order outside the timed
+    /// region): bvh2, bvh4 and bvh8 trace with their fast paths (watertight f32 test, no counters);
+    /// the compressed layouts with their own exact traversals (counters included).
+    pub fn timed<'a>(&'a self, tris: &[Triangle]) -> Timed<'a> {
+        match self {
+            Layout::Bvh2(l) => Timed::Bvh2(bvhlab_trace::FastBvh2::new(&l.bvh, tris)),
+            Layout::Wide(w) => Timed::Wide(w, bvhlab_trace::TriStore::new(&w.prim_indices, tris)),
+            other => Timed::Exact(other),
         }
     }
 
@@ -238,6 +273,7 @@ impl Layout {
             Layout::QbvhChunks(l) => l.sah_cost(cost),
             Layout::Octree(l) => l.sah_cost(cost),
             Layout::Octree1Bit(l) => l.sah_cost(cost),
+            Layout::Wide(l) => l.sah_cost(cost),
         }
     }
 
@@ -258,6 +294,7 @@ impl Layout {
             Layout::QbvhChunks(l) => l.validate_refs(tris, refs),
             Layout::Octree(l) => l.validate(tris),
             Layout::Octree1Bit(l) => l.validate(tris),
+            Layout::Wide(l) => l.validate(tris),
         }
     }
 
@@ -266,9 +303,27 @@ impl Layout {
     /// construction parameters. `None` when `self` is already uncompressed (bvh2, octree).
     pub fn uncompressed(&self, bvh: &Bvh, tris: &[Triangle]) -> Option<Layout> {
         match self {
-            Layout::Bvh2(_) | Layout::Octree(_) => None,
+            Layout::Bvh2(_) | Layout::Octree(_) | Layout::Wide(_) => None,
             Layout::QbvhChunks(_) => Some(Layout::Bvh2(bvh2::Bvh2::build(bvh))),
             Layout::Octree1Bit(l) => l.uncompressed(tris).map(Layout::Octree),
+        }
+    }
+}
+
+/// A layout ready for the timed path ([`Layout::timed`]).
+pub enum Timed<'a> {
+    Bvh2(bvhlab_trace::FastBvh2<'a>),
+    Wide(&'a wide::WideBvh, bvhlab_trace::TriStore),
+    Exact(&'a Layout),
+}
+
+impl Timed<'_> {
+    /// Closest hits of `rays` (what is timed). `tris` is only read by the exact traversals.
+    pub fn hits(&self, tris: &[Triangle], rays: &[Ray]) -> Vec<bvhlab_trace::Hit> {
+        match self {
+            Timed::Bvh2(f) => f.hits(rays),
+            Timed::Wide(w, store) => w.hits(store, rays),
+            Timed::Exact(l) => l.trace(tris, rays).hits,
         }
     }
 }

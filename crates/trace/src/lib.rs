@@ -1,11 +1,14 @@
 //! Rays and traversal: ray sets (thesis 4.4), closest-hit traversal with per-ray counters,
-//! the brute-force oracle every builder is checked against, and traversal-step heat maps.
+//! the brute-force oracle every builder is checked against, and traversal-step heat maps; `fast`:
+//! the timed path (slot-ordered triangles, watertight f32 test, no counters).
 
+pub mod fast;
 pub mod heatmap;
 pub mod rays;
 pub mod traverse;
 
 pub use rays::{primary_rays, random_rays, shadow_rays, Camera, Ray};
+pub use fast::{agrees, check_agreement, FastBvh2, TriStore, WTri};
 pub use traverse::{
     accept, brute_force, brute_force_one, intersect_triangle, trace, trace_with, Hit, RayBox,
     Stack, TraceStats, SLAB_ROBUST,

@@ -23,11 +23,13 @@ pub const LAYOUT_VERSION: u32 = 3;
 /// its build or traversal changes what it produces; its layout nodes get new keys, and so do the
 /// `auto` nodes (which may choose it), nothing else. The runner reads them from `Versions::layouts`
 /// (injectable, like the stage versions).
-pub const LAYOUT_VERSIONS: [(&str, u32); 4] = [
+pub const LAYOUT_VERSIONS: [(&str, u32); 6] = [
     ("bvh2", 1),
     ("qbvh_chunks", 1),
     ("octree", 1),
     ("octree_1bit", 1),
+    ("bvh4", 1),
+    ("bvh8", 1),
 ];
 
 /// The version of layout `name` in `versions` (`LAYOUT_VERSIONS`; 1 for a name not listed).

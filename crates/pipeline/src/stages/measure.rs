@@ -22,7 +22,9 @@ use std::time::Instant;
 /// 6: layout bvh2 is its own anchor: each run is timed once and stands for both sides
 ///    (`bvh2_seconds == seconds`, slowdown exactly 1); timing the same traversal twice measured
 ///    only noise (a bvh2-vs-bvh2 slowdown of 5.1 was seen on a loaded machine).
-pub const MEASURE_VERSION: u32 = 6;
+/// 7: timed runs use the fast path (issue 19: watertight f32 test, triangles in leaf-slot order, no
+///    counters; bvh4/bvh8 their SIMD traversals); counters and hits come from one untimed exact pass.
+pub const MEASURE_VERSION: u32 = 7;
 
 /// A ray set of the measure stage (thesis 4.4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -249,40 +251,31 @@ impl Stage for Measure {
             }
             RaySpec::Random { count } => random_ray_set(&scene, count, RANDOM_SEED),
         };
+        // Counters and hits from one untimed pass with the exact (f64) test; the timed runs use
+        // the fast path (issue 19: statistics must not slow what is timed): bvh2, bvh4 and bvh8
+        // with their watertight f32 traversals, the compressed layouts with their own.
+        let st = match &layout {
+            None => bvhlab_trace::trace(bvh, tris, &rays),
+            Some(l) => l.layout.trace(tris, &rays),
+        };
+        // Prepared outside the timed region (triangles copied into leaf-slot order).
+        let fast_bvh2 = bvhlab_trace::FastBvh2::new(bvh, tris);
+        let timed = layout.as_ref().map(|l| l.layout.timed(tris));
         let mut seconds = Vec::new();
         let mut bvh2_seconds = Vec::new();
-        let mut first = None;
         for run in 0..plan.spec.repeat {
-            match &layout {
-                None => {
-                    let t = Instant::now();
-                    let st = bvhlab_trace::trace(bvh, tris, &rays);
-                    seconds.push(secs(t));
-                    first.get_or_insert(st);
-                }
-                Some(l) if matches!(l.layout, bvhlab_layout::Layout::Bvh2(_)) => {
-                    // bvh2 against bvh2 is the same traversal of the same tree: one timing per
-                    // run stands for both sides, so the slowdown is exactly 1 by construction
-                    // (timing it twice measured only noise: 5.1 was seen on a loaded machine).
-                    let t = Instant::now();
-                    let st = l.layout.trace(tris, &rays);
-                    let s = secs(t);
-                    seconds.push(s);
-                    bvh2_seconds.push(s);
-                    first.get_or_insert(st);
-                }
-                Some(l) => {
+            match (&layout, &timed) {
+                (Some(l), Some(tl)) if !matches!(l.layout, bvhlab_layout::Layout::Bvh2(_)) => {
                     // The bvh2 anchor runs beside the layout on the same rays, alternating which
                     // goes first, so slowdown compares runs under the same machine conditions.
                     let mut time_layout = || {
                         let t = Instant::now();
-                        let st = l.layout.trace(tris, &rays);
+                        std::hint::black_box(tl.hits(tris, &rays));
                         seconds.push(secs(t));
-                        first.get_or_insert(st);
                     };
                     let mut time_bvh2 = || {
                         let t = Instant::now();
-                        std::hint::black_box(bvhlab_trace::trace(bvh, tris, &rays));
+                        std::hint::black_box(fast_bvh2.hits(&rays));
                         bvh2_seconds.push(secs(t));
                     };
                     if run % 2 == 0 {
@@ -293,9 +286,23 @@ impl Stage for Measure {
                         time_layout();
                     }
                 }
+                _ => {
+                    // No layout, or bvh2 against bvh2: the same traversal of the same tree, one
+                    // timing per run stands for both sides (slowdown exactly 1 by construction;
+                    // timing it twice measured only noise: 5.1 was seen on a loaded machine).
+                    let t = Instant::now();
+                    std::hint::black_box(fast_bvh2.hits(&rays));
+                    let s = secs(t);
+                    seconds.push(s);
+                    if layout.is_some() {
+                        bvh2_seconds.push(s);
+                    }
+                }
             }
         }
-        let st = first.ok_or_else(|| Error::internal("repeat = 0"))?;
+        if seconds.is_empty() {
+            return Err(Error::internal("repeat = 0"));
+        }
         let peer = match rt.registry.get(&plan.resolved.builder)?.peer {
             Some(p) => Some(peer_measure(p, bvh, tris, &rays, &st.hits, plan)?),
             None => None,

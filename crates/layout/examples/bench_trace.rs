@@ -1,0 +1,164 @@
+//! Trace throughput of bvh2, bvh4 and bvh8 beside Embree and tinybvh, in one invocation (issue 19):
+//! `cargo run --release -p bvhlab-layout --example bench_trace -- [--runs N] [--rays N] [--tools DIR] SCENE...`
+//!
+//! Per scene: binned SAH (16 bins, leaf 2, c_T = 3, c_I = 2: `eval --build binned-sah`'s defaults),
+//! then bvhlab's timed paths (watertight f32 test, no counters) on 10^6 random rays of the anchors'
+//! kind: pairs of uniform points on the sphere around the scene box (radius half its diagonal, as
+//! `../shared/tools/*_anchor.cpp`), the ray starting at the first point towards the second with an
+//! infinite tmax (the anchors' tfar). The points come from bvhlab's generator (seed 7), not the
+//! anchors' mt19937, so the rays are of the same kind but not the same rays: the hit fractions
+//! printed beside each other say how close the sets are. 1 thread: median of `--runs` runs; 2
+//! threads for bvh8. Then `embree-anchor SCENE 1 1` and `tinybvh-anchor SCENE 1` (their builds run
+//! once; their traces are one pass over 10^6 rays each) in the same invocation, and the ratios.
+//! Before timing, the fast hits of 10^4 rays are checked against the exact traversal
+//! (`bvhlab_trace::check_agreement`).
+use bvhlab_builders::{binned_sah, TopDownConfig};
+use bvhlab_geom::stats::median;
+use bvhlab_layout::wide::WideBvh;
+use bvhlab_trace::{check_agreement, random_rays, FastBvh2, Hit, Ray, TriStore};
+use std::process::Command;
+use std::time::Instant;
+
+fn pool(n: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new().num_threads(n).build().expect("thread pool")
+}
+
+/// Median Mrays/s of `runs` runs of `f` in a pool of `threads`.
+fn mrays(rays: usize, runs: usize, threads: usize, f: &(dyn Fn() -> Vec<Hit> + Sync)) -> f64 {
+    let p = pool(threads);
+    let mut t = Vec::new();
+    for _ in 0..runs {
+        let s = Instant::now();
+        std::hint::black_box(p.install(f));
+        t.push(s.elapsed().as_secs_f64());
+    }
+    rays as f64 / median(&t) / 1e6
+}
+
+/// The number after `"key":` in a one-line JSON object, after `after` if given.
+fn field(json: &str, after: &str, key: &str) -> Option<f64> {
+    let from = json.find(after)?;
+    let rest = &json[from..];
+    let i = rest.find(&format!("\"{key}\":"))? + key.len() + 3;
+    let end = rest[i..].find(|c: char| !(c.is_ascii_digit() || ".-+eE".contains(c)))?;
+    rest[i..i + end].parse().ok()
+}
+
+fn anchor(tool: &str, args: &[&str]) -> Option<String> {
+    let out = Command::new(tool).args(args).output().ok()?;
+    if !out.status.success() {
+        eprintln!("{tool}: exit {:?}: {}", out.status.code(), String::from_utf8_lossy(&out.stderr));
+        return None;
+    }
+    String::from_utf8(out.stdout).ok()?.lines().last().map(str::to_string)
+}
+
+fn main() {
+    let mut args = std::env::args().skip(1);
+    let (mut runs, mut n_rays, mut tools) = (3usize, 1_000_000usize, "../shared/tools".to_string());
+    let mut scenes = Vec::new();
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--runs" => runs = args.next().and_then(|v| v.parse().ok()).expect("--runs N"),
+            "--rays" => n_rays = args.next().and_then(|v| v.parse().ok()).expect("--rays N"),
+            "--tools" => tools = args.next().expect("--tools DIR"),
+            _ => scenes.push(a),
+        }
+    }
+    if scenes.is_empty() {
+        eprintln!("usage: bench_trace [--runs N] [--rays N] [--tools DIR] SCENE...");
+        std::process::exit(2);
+    }
+    let avx2 = {
+        #[cfg(target_arch = "x86_64")]
+        {
+            std::is_x86_feature_detected!("avx2")
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            false
+        }
+    };
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    println!("# bench-trace: {n_rays} random rays, 1 thread unless said, median of {runs} runs; AVX2: {avx2}; loadavg at start: {}", load.trim());
+    println!(
+        "{:<16} {:>8} {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>8} | {:>7} {:>7} | {:>9} {:>9} {:>9} {:>8}",
+        "scene", "tris", "hit%", "hit%E", "hit%T", "bvh2", "bvh4", "bvh8", "bvh8x2T", "embree", "tinybvh",
+        "bvh2/E", "bvh4/E", "bvh8/T", "2T/1T"
+    );
+    for spec in &scenes {
+        let scene = match bvhlab_geom::load_scene(spec) {
+            Ok(s) => s,
+            Err(e) => {
+                eprintln!("{spec}: {e}");
+                continue;
+            }
+        };
+        let name = std::path::Path::new(spec)
+            .file_name()
+            .map(|f| f.to_string_lossy().trim_end_matches(".gz").trim_end_matches(".obj").to_string())
+            .unwrap_or_else(|| spec.clone());
+        let tris = &scene.triangles;
+        let (boxes, centers) = scene.boxes_and_centers();
+        let bvh = binned_sah::build(&boxes, &centers, 16, &TopDownConfig::default());
+        let b = scene.bounds();
+        // The anchors' sphere: half the box diagonal; their rays have an infinite tfar.
+        let radius = (0.5 * b.extent_f64().length()) as f32;
+        let rays: Vec<Ray> = random_rays(&b, radius, n_rays, 7)
+            .into_iter()
+            .map(|r| Ray { tmax: f32::INFINITY, ..r })
+            .collect();
+        let f2 = FastBvh2::new(&bvh, tris);
+        let w4 = WideBvh::build(&bvh, 4).expect("bvh4");
+        let w8 = WideBvh::build(&bvh, 8).expect("bvh8");
+        let s4 = TriStore::new(&w4.prim_indices, tris);
+        let s8 = TriStore::new(&w8.prim_indices, tris);
+        // Oracle on a sample: fast hits against the exact traversal.
+        let sample = &rays[..rays.len().min(10_000)];
+        let exact = bvhlab_trace::trace(&bvh, tris, sample).hits;
+        for (label, got) in [
+            ("bvh2", f2.hits(sample)),
+            ("bvh4", w4.hits(&s4, sample)),
+            ("bvh8", w8.hits(&s8, sample)),
+        ] {
+            if let Err(e) = check_agreement(tris, sample, &got, &exact, sample.len() / 1000 + 1) {
+                eprintln!("{name} {label}: fast path disagrees with the exact traversal: {e}");
+                std::process::exit(1);
+            }
+        }
+        let hit_frac = f2.hits(&rays).iter().filter(|h| h.is_hit()).count() as f64 / rays.len() as f64;
+        let m2 = mrays(rays.len(), runs, 1, &|| f2.hits(&rays));
+        let m4 = mrays(rays.len(), runs, 1, &|| w4.hits(&s4, &rays));
+        let m8 = mrays(rays.len(), runs, 1, &|| w8.hits(&s8, &rays));
+        let m8x2 = mrays(rays.len(), runs, 2, &|| w8.hits(&s8, &rays));
+        let e = anchor(&format!("{tools}/embree-anchor"), &[spec, "1", "1"]);
+        let t = anchor(&format!("{tools}/tinybvh-anchor"), &[spec, "1"]);
+        let em = e.as_deref().and_then(|j| field(j, "scene_commit_ms", "mrays_per_s_1thread"));
+        let eh = e.as_deref().and_then(|j| field(j, "scene_commit_ms", "hit_fraction"));
+        let tm = t.as_deref().and_then(|j| field(j, "trace_bvh8_cpu", "mrays_per_s_1thread"));
+        let th = t.as_deref().and_then(|j| field(j, "trace_bvh8_cpu", "hit_fraction"));
+        let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.2}", 100.0 * v));
+        let num = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
+        let ratio = |a: f64, b: Option<f64>| b.map_or("-".to_string(), |b| format!("{:.2}x", a / b));
+        println!(
+            "{:<16} {:>8} {:>7.2} {:>7} {:>7} | {:>7.2} {:>7.2} {:>7.2} {:>8.2} | {:>7} {:>7} | {:>9} {:>9} {:>9} {:>7.2}x",
+            name,
+            tris.len(),
+            100.0 * hit_frac,
+            pct(eh),
+            pct(th),
+            m2,
+            m4,
+            m8,
+            m8x2,
+            num(em),
+            num(tm),
+            ratio(m2, em),
+            ratio(m4, em),
+            ratio(m8, tm),
+            m8x2 / m8
+        );
+    }
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; loadavg at end: {}", load.trim());
+}

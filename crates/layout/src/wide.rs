@@ -1,0 +1,624 @@
+//! Wide BVHs `bvh4` and `bvh8` (issue 19 item 2): the binary BVH collapsed into 4- or 8-wide nodes,
+//! child boxes stored structure-of-arrays, all children's boxes tested at once with SIMD, children
+//! visited nearest first.
+//!
+//! Collapse: the greedy method of Wald, Benthin and Boulos 2008 ("Getting rid of packets", section
+//! 3.1; also Dammertz et al. 2008): a wide node starts with the binary node's two children and
+//! repeatedly replaces the inner child of largest surface area by its two children until it has
+//! `width` children or only leaves. Pulling the largest box first is what the SAH favours: the
+//! larger a box, the likelier a ray enters it, so skipping it saves the most node visits. Binary
+//! leaves stay leaves (their triangle ranges are kept), so the leaf-slot order of the binary BVH is
+//! the triangle order here too. (Ylitie et al. 2017's DP is the optimal alternative; not done.)
+//!
+//! Node storage: per node `7 * width` 32-bit words: rows min.x, min.y, min.z, max.x, max.y, max.z
+//! (f32 bits, one value per child) and a row of child codes (inner: node index; leaf: `LEAF_BIT |`
+//! index into `leaves`; empty slot: [`EMPTY`], with the empty box, which the sign-selected slab
+//! test always misses). bvh4: 112 bytes per node; bvh8: 224.
+//!
+//! Box test: one SIMD slab test of all children (AVX2 for 8 wide when the CPU has it, detected at
+//! run time; SSE for 4 wide, baseline on x86-64; a scalar loop otherwise), conservative like the
+//! binary traversal's (`bvhlab_trace::SLAB_ROBUST`). Leaves use the triangle test given as a type:
+//! the watertight f32 test for timing, the exact f64 test for counters and the oracle.
+use crate::Memory;
+use bvhlab_bvh::{Bvh, CostParams};
+use bvhlab_geom::{Aabb, Triangle, Vec3};
+use bvhlab_params::Method;
+use bvhlab_trace::fast::{Exact, SlabRay, TriTest, Watertight};
+use bvhlab_trace::{accept, Hit, Ray, RayBox, Stack, TraceStats, TriStore, WTri, SLAB_ROBUST};
+use serde::{Deserialize, Serialize};
+
+pub const METHOD4: Method = Method::new(
+    "bvh4",
+    "4-wide BVH: greedy SAH collapse of the binary BVH (largest-area child first), SoA child boxes, SSE box test, nearest child first",
+    "Wald et al. 2008 (greedy collapse); Dammertz et al. 2008 (QBVH)",
+    &[],
+);
+
+pub const METHOD8: Method = Method::new(
+    "bvh8",
+    "8-wide BVH: greedy SAH collapse of the binary BVH (largest-area child first), SoA child boxes, AVX2 box test (scalar fallback), nearest child first",
+    "Wald et al. 2008 (greedy collapse); Ylitie et al. 2017 (8-wide)",
+    &[],
+);
+
+/// Child code of an unused slot.
+pub const EMPTY: u32 = u32::MAX;
+/// Set in a child code that names a leaf (the rest is the index into `leaves`).
+pub const LEAF_BIT: u32 = 1 << 31;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WideBvh {
+    /// 4 or 8.
+    pub width: u32,
+    /// `7 * width` words per node (see the module doc); node 0 is the root.
+    pub data: Vec<u32>,
+    /// (first slot, count) per leaf: triangles `prim_indices[first..first + count]`.
+    pub leaves: Vec<[u32; 2]>,
+    pub prim_indices: Vec<u32>,
+    /// Box of the root (tested once per ray, exactly, before the SIMD traversal).
+    pub root_bounds: Aabb,
+}
+
+impl WideBvh {
+    /// Greedy collapse of `bvh` (module doc). Errors on a malformed input (index out of range or a
+    /// node reached twice), which a validated BVH never is.
+    pub fn build(bvh: &Bvh, width: usize) -> Result<WideBvh, String> {
+        assert!(width == 4 || width == 8, "width 4 or 8");
+        let mut w = WideBvh {
+            width: width as u32,
+            data: Vec::new(),
+            leaves: Vec::new(),
+            prim_indices: bvh.prim_indices.clone(),
+            root_bounds: Aabb::EMPTY,
+        };
+        let nodes = &bvh.nodes;
+        let Some(root) = nodes.first() else {
+            return Ok(w);
+        };
+        w.root_bounds = root.bounds;
+        let bad = |i: u32| format!("malformed BVH: node index {i} out of range");
+        let mut seen = vec![false; nodes.len()];
+        let mut work = vec![(w.alloc(), 0u32)];
+        while let Some((wi, bn)) = work.pop() {
+            let n = nodes.get(bn as usize).ok_or_else(|| bad(bn))?;
+            let mut kids: Vec<u32> = if n.is_leaf() { vec![bn] } else { vec![n.first, n.first.wrapping_add(1)] };
+            loop {
+                if kids.len() >= width {
+                    break;
+                }
+                // The inner child of largest surface area (first one on ties: deterministic).
+                let mut pick: Option<(usize, f64)> = None;
+                for (i, &k) in kids.iter().enumerate() {
+                    let kn = nodes.get(k as usize).ok_or_else(|| bad(k))?;
+                    if !kn.is_leaf() {
+                        let a = kn.bounds.area();
+                        if pick.is_none_or(|(_, b)| a > b) {
+                            pick = Some((i, a));
+                        }
+                    }
+                }
+                let Some((i, _)) = pick else { break };
+                let l = nodes[kids[i] as usize].first;
+                kids[i] = l;
+                kids.insert(i + 1, l.wrapping_add(1));
+            }
+            for (slot, &k) in kids.iter().enumerate() {
+                let kn = nodes.get(k as usize).ok_or_else(|| bad(k))?;
+                if std::mem::replace(&mut seen[k as usize], true) && k != 0 {
+                    return Err(format!("malformed BVH: node {k} reached twice"));
+                }
+                w.set_box(wi, slot, &kn.bounds);
+                let code = if kn.is_leaf() {
+                    w.leaves.push([kn.first, kn.count]);
+                    LEAF_BIT | (w.leaves.len() - 1) as u32
+                } else {
+                    let ni = w.alloc();
+                    work.push((ni, k));
+                    ni as u32
+                };
+                w.set_child(wi, slot, code);
+            }
+        }
+        Ok(w)
+    }
+
+    fn stride(&self) -> usize {
+        7 * self.width as usize
+    }
+
+    fn alloc(&mut self) -> usize {
+        let (wd, idx) = (self.width as usize, self.nodes());
+        for row in 0..7 {
+            let v = match row {
+                0..=2 => f32::INFINITY.to_bits(),
+                3..=5 => f32::NEG_INFINITY.to_bits(),
+                _ => EMPTY,
+            };
+            self.data.extend(std::iter::repeat_n(v, wd));
+        }
+        idx
+    }
+
+    fn set_box(&mut self, node: usize, slot: usize, b: &Aabb) {
+        let (s, wd) = (self.stride(), self.width as usize);
+        let c = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
+        for (row, v) in c.iter().enumerate() {
+            self.data[node * s + row * wd + slot] = v.to_bits();
+        }
+    }
+
+    fn set_child(&mut self, node: usize, slot: usize, code: u32) {
+        let (s, wd) = (self.stride(), self.width as usize);
+        self.data[node * s + 6 * wd + slot] = code;
+    }
+
+    /// Number of wide nodes.
+    pub fn nodes(&self) -> usize {
+        self.data.len() / self.stride()
+    }
+
+    /// Child `slot` of `node`: (code, box).
+    pub fn child(&self, node: usize, slot: usize) -> (u32, Aabb) {
+        let (s, wd) = (self.stride(), self.width as usize);
+        let f = |row: usize| f32::from_bits(self.data[node * s + row * wd + slot]);
+        let b = Aabb {
+            min: Vec3::new(f(0), f(1), f(2)),
+            max: Vec3::new(f(3), f(4), f(5)),
+        };
+        (self.data[node * s + 6 * wd + slot], b)
+    }
+
+    pub fn memory(&self) -> Memory {
+        let topology = (self.data.len() * 4 + self.leaves.len() * 8) as u64;
+        Memory {
+            topology_bytes: topology,
+            total_bytes: topology + self.prim_indices.len() as u64 * 4,
+            nodes: (self.nodes() + self.leaves.len()) as u64,
+            chunks: 0,
+            chunk_fill: 0.0,
+            prim_refs: self.prim_indices.len() as u64,
+        }
+    }
+
+    /// Thesis eq. 4 over the wide tree: c_T per wide node entered (its box is the union of its
+    /// children's), c_I per triangle test, each weighted by its box's area over the root's. A wide
+    /// node stands for several binary nodes, so this is below the binary tree's cost; it is the
+    /// same model with one node visit per wide node (the SIMD test of all children).
+    pub fn sah_cost(&self, cost: CostParams) -> f64 {
+        if self.nodes() == 0 {
+            return 0.0;
+        }
+        let root_sa = self.root_bounds.area();
+        let degenerate = !(root_sa > 0.0);
+        let ratio = |sa: f64| if degenerate { 1.0 } else { sa / root_sa };
+        let (mut inner, mut leaf) = (0.0f64, 0.0f64);
+        for n in 0..self.nodes() {
+            let mut u = Aabb::EMPTY;
+            for s in 0..self.width as usize {
+                let (code, b) = self.child(n, s);
+                if code == EMPTY {
+                    continue;
+                }
+                u = u.union(&b);
+                if code & LEAF_BIT != 0 {
+                    let [_, count] = self.leaves[(code & !LEAF_BIT) as usize];
+                    leaf += ratio(b.area()) * count as f64;
+                }
+            }
+            inner += ratio(if n == 0 { root_sa } else { u.area() });
+        }
+        cost.c_t as f64 * inner + cost.c_i as f64 * leaf
+    }
+
+    /// Every triangle referenced exactly once; each node and leaf reached once from the root;
+    /// child boxes inside the box their parent slot (or the root box) gives; leaf boxes around
+    /// their triangles; empty slots carry the empty box.
+    pub fn validate(&self, tris: &[Triangle]) -> Result<(), String> {
+        let wd = self.width as usize;
+        if self.nodes() == 0 {
+            return if tris.is_empty() && self.prim_indices.is_empty() {
+                Ok(())
+            } else {
+                Err("no nodes but triangles".into())
+            };
+        }
+        let mut seen_node = vec![false; self.nodes()];
+        let mut seen_leaf = vec![false; self.leaves.len()];
+        let mut refs = vec![0u32; tris.len()];
+        let mut slot_used = vec![false; self.prim_indices.len()];
+        let mut stack = vec![(0usize, self.root_bounds)];
+        seen_node[0] = true;
+        while let Some((n, parent)) = stack.pop() {
+            let mut any = false;
+            for s in 0..wd {
+                let (code, b) = self.child(n, s);
+                if code == EMPTY {
+                    if !b.is_empty() {
+                        return Err(format!("node {n} slot {s}: empty slot with a box"));
+                    }
+                    continue;
+                }
+                any = true;
+                if !parent.contains(&b) {
+                    return Err(format!("node {n} slot {s}: child box outside its parent's"));
+                }
+                if code & LEAF_BIT == 0 {
+                    let c = code as usize;
+                    if c >= self.nodes() || std::mem::replace(&mut seen_node[c], true) {
+                        return Err(format!("node {n} slot {s}: child {c} out of range or reached twice"));
+                    }
+                    stack.push((c, b));
+                } else {
+                    let l = (code & !LEAF_BIT) as usize;
+                    if l >= self.leaves.len() || std::mem::replace(&mut seen_leaf[l], true) {
+                        return Err(format!("node {n} slot {s}: leaf {l} out of range or reached twice"));
+                    }
+                    let [first, count] = self.leaves[l];
+                    let (first, count) = (first as usize, count as usize);
+                    if count == 0 || first + count > self.prim_indices.len() {
+                        return Err(format!("leaf {l}: slots {first}+{count} out of range"));
+                    }
+                    for slot in first..first + count {
+                        if std::mem::replace(&mut slot_used[slot], true) {
+                            return Err(format!("leaf {l}: slot {slot} shared with another leaf"));
+                        }
+                        let p = self.prim_indices[slot] as usize;
+                        let t = tris.get(p).ok_or_else(|| format!("leaf {l}: triangle {p} out of range"))?;
+                        if !b.contains(&t.bounds()) {
+                            return Err(format!("leaf {l}: triangle {p} outside the leaf box"));
+                        }
+                        refs[p] += 1;
+                    }
+                }
+            }
+            if !any {
+                return Err(format!("node {n} has no child"));
+            }
+        }
+        if let Some(n) = seen_node.iter().position(|s| !s) {
+            return Err(format!("node {n} unreachable"));
+        }
+        if let Some(l) = seen_leaf.iter().position(|s| !s) {
+            return Err(format!("leaf {l} unreachable"));
+        }
+        if let Some(p) = refs.iter().position(|&r| r != 1) {
+            return Err(format!("triangle {p} referenced {} times", refs[p]));
+        }
+        Ok(())
+    }
+
+    /// Closest hits with counters (exact f64 test, scalar box test: the oracle and the counters;
+    /// untimed). Steps = wide nodes and leaves entered; tests = triangle tests.
+    pub fn trace(&self, tris: &[Triangle], rays: &[Ray]) -> TraceStats {
+        let store = TriStore::new(&self.prim_indices, tris);
+        let v = self.view(&store);
+        bvhlab_trace::trace_with(rays, Stack::new, |stack, ray| match self.width {
+            4 => v.one::<4, Exact, Scalar, true>(ray, stack),
+            _ => v.one::<8, Exact, Scalar, true>(ray, stack),
+        })
+    }
+
+    /// The timed path: hits only, the watertight f32 test, the SIMD box test.
+    pub fn hits(&self, store: &TriStore, rays: &[Ray]) -> Vec<Hit> {
+        self.hits_with::<Watertight>(store, rays, Simd::Best)
+    }
+
+    /// Hits with the triangle test `T` and the box test `simd` (tests check every combination).
+    pub fn hits_with<T: TriTest>(&self, store: &TriStore, rays: &[Ray], simd: Simd) -> Vec<Hit> {
+        let v = self.view(store);
+        let simd = simd.resolve(self.width);
+        let mut hits = vec![Hit::NONE; rays.len()];
+        use rayon::prelude::*;
+        hits.par_chunks_mut(1024)
+            .zip(rays.par_chunks(1024))
+            .for_each_init(Stack::new, |stack, (h, r)| match (self.width, simd) {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: `resolve` picks Avx2 only when the CPU has AVX2.
+                (8, Simd::Avx2) => unsafe { chunk_avx8::<T>(&v, r, h, stack) },
+                #[cfg(target_arch = "x86_64")]
+                (4, Simd::Sse) => chunk::<4, T, Sse4>(&v, r, h, stack),
+                (4, _) => chunk::<4, T, Scalar>(&v, r, h, stack),
+                _ => chunk::<8, T, Scalar>(&v, r, h, stack),
+            });
+        hits
+    }
+
+    fn view<'a>(&'a self, store: &'a TriStore) -> View<'a> {
+        // SAFETY: f32 and u32 have the same size and alignment; every bit pattern is a valid f32.
+        let f = unsafe { std::slice::from_raw_parts(self.data.as_ptr() as *const f32, self.data.len()) };
+        View {
+            f,
+            data: &self.data,
+            leaves: &self.leaves,
+            tris: &store.tris,
+            root: self.root_bounds,
+            nodes: self.nodes(),
+        }
+    }
+}
+
+/// Which box test the timed path uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Simd {
+    /// AVX2 for bvh8 when the CPU has it, SSE for bvh4 (x86-64), else scalar.
+    Best,
+    Avx2,
+    Sse,
+    Scalar,
+}
+
+impl Simd {
+    fn resolve(self, width: u32) -> Simd {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let avx2 = std::is_x86_feature_detected!("avx2");
+            match (self, width) {
+                (Simd::Best | Simd::Avx2, 8) if avx2 => Simd::Avx2,
+                (Simd::Best | Simd::Sse, 4) => Simd::Sse,
+                _ => Simd::Scalar,
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = (self, width);
+            Simd::Scalar
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+struct View<'a> {
+    /// `data` as f32 (the box rows).
+    f: &'a [f32],
+    data: &'a [u32],
+    leaves: &'a [[u32; 2]],
+    tris: &'a [WTri],
+    root: Aabb,
+    nodes: usize,
+}
+
+/// All children's slab tests of one node at once: entry distances into `dist`, a bit per child hit.
+trait WideBox<const W: usize> {
+    /// # Safety
+    /// `rows` points at a node's six box rows of `W` floats each; the SIMD impls need their CPU feature.
+    unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; W]) -> u32;
+}
+
+struct Scalar;
+impl<const W: usize> WideBox<W> for Scalar {
+    #[inline(always)]
+    unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; W]) -> u32 {
+        let rows = unsafe { std::slice::from_raw_parts(rows, 6 * W) };
+        let mut mask = 0;
+        for (c, d) in dist.iter_mut().enumerate() {
+            let t = |k: usize, a: usize| (rows[k * W + c] - r.origin[a]) * r.inv[a];
+            let mx = |a: f32, b: f32| if a > b { a } else { b };
+            let mn = |a: f32, b: f32| if a < b { a } else { b };
+            let near = mx(mx(t(r.near[0], 0), t(r.near[1], 1)), mx(t(r.near[2], 2), 0.0));
+            let far = mn(mn(t(r.far[0], 0), t(r.far[1], 1)), mn(t(r.far[2], 2), tmax)) * SLAB_ROBUST;
+            *d = near;
+            mask |= ((near <= far) as u32) << c;
+        }
+        mask
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+struct Sse4;
+#[cfg(target_arch = "x86_64")]
+impl WideBox<4> for Sse4 {
+    #[inline(always)]
+    unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; 4]) -> u32 {
+        use std::arch::x86_64::*;
+        unsafe {
+            let t = |k: usize, a: usize| {
+                _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(rows.add(k * 4)), _mm_set1_ps(r.origin[a])), _mm_set1_ps(r.inv[a]))
+            };
+            let near = _mm_max_ps(_mm_max_ps(t(r.near[0], 0), t(r.near[1], 1)), _mm_max_ps(t(r.near[2], 2), _mm_setzero_ps()));
+            let far = _mm_mul_ps(
+                _mm_min_ps(_mm_min_ps(t(r.far[0], 0), t(r.far[1], 1)), _mm_min_ps(t(r.far[2], 2), _mm_set1_ps(tmax))),
+                _mm_set1_ps(SLAB_ROBUST),
+            );
+            _mm_storeu_ps(dist.as_mut_ptr(), near);
+            _mm_movemask_ps(_mm_cmple_ps(near, far)) as u32
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+struct Avx8;
+#[cfg(target_arch = "x86_64")]
+impl WideBox<8> for Avx8 {
+    #[inline(always)]
+    unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; 8]) -> u32 {
+        use std::arch::x86_64::*;
+        unsafe {
+            let t = |k: usize, a: usize| {
+                _mm256_mul_ps(
+                    _mm256_sub_ps(_mm256_loadu_ps(rows.add(k * 8)), _mm256_set1_ps(r.origin[a])),
+                    _mm256_set1_ps(r.inv[a]),
+                )
+            };
+            let near = _mm256_max_ps(
+                _mm256_max_ps(t(r.near[0], 0), t(r.near[1], 1)),
+                _mm256_max_ps(t(r.near[2], 2), _mm256_setzero_ps()),
+            );
+            let far = _mm256_mul_ps(
+                _mm256_min_ps(
+                    _mm256_min_ps(t(r.far[0], 0), t(r.far[1], 1)),
+                    _mm256_min_ps(t(r.far[2], 2), _mm256_set1_ps(tmax)),
+                ),
+                _mm256_set1_ps(SLAB_ROBUST),
+            );
+            _mm256_storeu_ps(dist.as_mut_ptr(), near);
+            _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(near, far)) as u32
+        }
+    }
+}
+
+/// Parallel rays (a zero direction component): every child through `RayBox::hit`, which is exact
+/// for them; empty slots skipped by code (`RayBox` sees the empty box as unbounded).
+struct Parallel;
+
+#[inline(always)]
+fn chunk<const W: usize, T: TriTest, B: WideBox<W>>(v: &View, rays: &[Ray], hits: &mut [Hit], stack: &mut Stack) {
+    for (h, r) in hits.iter_mut().zip(rays) {
+        *h = v.one::<W, T, B, false>(r, stack).0;
+    }
+}
+
+/// The 8-wide chunk compiled with AVX2 so the box test's intrinsics inline.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn chunk_avx8<T: TriTest>(v: &View, rays: &[Ray], hits: &mut [Hit], stack: &mut Stack) {
+    chunk::<8, T, Avx8>(v, rays, hits, stack)
+}
+
+impl View<'_> {
+    #[inline(always)]
+    fn one<const W: usize, T: TriTest, B: WideBox<W>, const STATS: bool>(
+        &self,
+        ray: &Ray,
+        stack: &mut Stack,
+    ) -> (Hit, u32, u32) {
+        if self.nodes == 0 || ray.tmax.is_nan() || ray.tmax <= 0.0 {
+            return (Hit::NONE, 0, 0);
+        }
+        let rb = RayBox::new(ray);
+        if self.root.is_empty() || rb.hit(&self.root, ray.tmax).is_none() {
+            return (Hit::NONE, 0, 0);
+        }
+        let sr = SlabRay::new(ray);
+        if sr.parallel {
+            self.walk::<W, T, Parallel, STATS>(ray, &sr, &rb, stack)
+        } else {
+            self.walk::<W, T, B, STATS>(ray, &sr, &rb, stack)
+        }
+    }
+
+    /// Nearest child first: the children hit are sorted by entry distance, the nearest entered,
+    /// the rest pushed farthest first; a popped entry beyond the closest hit is culled (with the
+    /// binary traversal's margin, so the exact test finds brute force's hits, ties included).
+    #[inline(always)]
+    fn walk<const W: usize, T: TriTest, B: BoxSel<W>, const STATS: bool>(
+        &self,
+        ray: &Ray,
+        sr: &SlabRay,
+        rb: &RayBox,
+        stack: &mut Stack,
+    ) -> (Hit, u32, u32) {
+        let mut best = Hit {
+            t: ray.tmax,
+            prim: u32::MAX,
+        };
+        let (mut steps, mut tests) = (0u32, 0u32);
+        let tr = T::prepare(ray);
+        stack.clear();
+        let mut cur = 0u32;
+        let mut budget = self.nodes + self.leaves.len();
+        let stride = 7 * W;
+        'outer: loop {
+            if budget == 0 {
+                break;
+            }
+            budget -= 1;
+            if STATS {
+                steps += 1;
+            }
+            if cur & LEAF_BIT == 0 {
+                let base = cur as usize * stride;
+                let Some(node) = self.f.get(base..base + stride) else { break };
+                let mut dist = [0f32; W];
+                let mask = B::sel(node, &self.data[base + 6 * W..base + 7 * W], sr, rb, best.t, &mut dist);
+                let codes = &self.data[base + 6 * W..base + 7 * W];
+                match mask.count_ones() {
+                    0 => {}
+                    1 => {
+                        cur = codes[mask.trailing_zeros() as usize];
+                        continue;
+                    }
+                    _ => {
+                        let mut items = [(0u32, 0f32); W];
+                        let mut n = 0;
+                        let mut m = mask;
+                        while m != 0 {
+                            let i = m.trailing_zeros() as usize;
+                            m &= m - 1;
+                            // Insertion by descending entry: the nearest ends up last.
+                            let e = (codes[i], dist[i]);
+                            let mut j = n;
+                            while j > 0 && items[j - 1].1 < e.1 {
+                                items[j] = items[j - 1];
+                                j -= 1;
+                            }
+                            items[j] = e;
+                            n += 1;
+                        }
+                        for &it in &items[..n - 1] {
+                            stack.push(it);
+                        }
+                        cur = items[n - 1].0;
+                        continue;
+                    }
+                }
+            } else if let Some(&[first, count]) = self.leaves.get((cur & !LEAF_BIT) as usize) {
+                let first = (first as usize).min(self.tris.len());
+                let end = first.saturating_add(count as usize).min(self.tris.len());
+                for tri in &self.tris[first..end] {
+                    if STATS {
+                        tests += 1;
+                    }
+                    if let Some(t) = T::test(&tr, tri) {
+                        accept(t, tri.prim, &mut best);
+                    }
+                }
+            }
+            while let Some((n, entry)) = stack.pop() {
+                if entry <= best.t * SLAB_ROBUST {
+                    cur = n;
+                    continue 'outer;
+                }
+            }
+            break;
+        }
+        let hit = if best.prim == u32::MAX { Hit::NONE } else { best };
+        (hit, steps, tests)
+    }
+}
+
+/// A box test over a node given its rows and codes (the SIMD tests ignore the codes; the parallel
+/// test needs them to skip empty slots).
+trait BoxSel<const W: usize> {
+    fn sel(rows: &[f32], codes: &[u32], sr: &SlabRay, rb: &RayBox, tmax: f32, dist: &mut [f32; W]) -> u32;
+}
+
+impl<const W: usize, B: WideBox<W>> BoxSel<W> for B {
+    #[inline(always)]
+    fn sel(rows: &[f32], _: &[u32], sr: &SlabRay, _: &RayBox, tmax: f32, dist: &mut [f32; W]) -> u32 {
+        debug_assert!(rows.len() >= 6 * W);
+        // SAFETY: rows holds at least 6 * W floats (a node's slice); the CPU feature of a SIMD `B`
+        // was checked before its instantiation was called (`Simd::resolve`).
+        unsafe { B::test(rows.as_ptr(), sr, tmax, dist) }
+    }
+}
+
+impl<const W: usize> BoxSel<W> for Parallel {
+    fn sel(rows: &[f32], codes: &[u32], _: &SlabRay, rb: &RayBox, tmax: f32, dist: &mut [f32; W]) -> u32 {
+        let mut mask = 0;
+        for c in 0..W {
+            if codes[c] == EMPTY {
+                continue;
+            }
+            let f = |row: usize| rows[row * W + c];
+            let b = Aabb {
+                min: Vec3::new(f(0), f(1), f(2)),
+                max: Vec3::new(f(3), f(4), f(5)),
+            };
+            if let Some(t) = rb.hit(&b, tmax) {
+                dist[c] = t;
+                mask |= 1 << c;
+            }
+        }
+        mask
+    }
+}

@@ -1,0 +1,495 @@
+//! The timed traversal path (issue 19 item 1): the same closest-hit search as [`crate::trace`],
+//! built for speed, with the exact f64 test kept as the reference.
+//!
+//! - Triangles are copied once, before timing, into leaf-slot order ([`TriStore`]): a leaf reads
+//!   `tris[first..first + count]` contiguously instead of going through `prim_indices`.
+//! - The triangle test is a type parameter ([`TriTest`]): [`Watertight`] is the f32 test of Woop,
+//!   Benthin and Wald 2013 ("Watertight Ray/Triangle Intersection", JCGT 2(1)) used for timing;
+//!   [`Exact`] is [`crate::intersect_triangle`] (f64), the oracle's test, with which this traversal
+//!   finds exactly brute force's hits.
+//! - Counters are a const generic (`STATS`): the timed instantiation has no counting code at all.
+//! - The box test uses the inverse direction and the near/far plane chosen once per ray by the
+//!   direction's sign (Williams et al. 2005, "An efficient and robust ray-box intersection
+//!   algorithm"), with the same conservative margin as [`crate::RayBox`] (Ize 2013). Rays with a zero
+//!   direction component go through [`crate::RayBox::hit`], which handles them exactly.
+//! - Near child first, a fixed stack ([`crate::Stack`], spilling only past 64 entries), no allocation
+//!   per ray; rays run in parallel over rayon chunks with per-ray results (any thread count gives the
+//!   same hits).
+use crate::{accept, intersect_triangle, Hit, Ray, RayBox, Stack, TraceStats, SLAB_ROBUST};
+use bvhlab_bvh::{Bvh, Node};
+use bvhlab_geom::{Aabb, Triangle, Vec3};
+use rayon::prelude::*;
+
+/// One triangle in leaf-slot order: its three vertices (the watertight test needs the vertices,
+/// not edges: Woop 2013 section 3 translates each vertex by the origin) and its scene index.
+/// 48 bytes with the alignment, so a triangle never straddles two cache lines.
+#[repr(C, align(16))]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WTri {
+    pub v: [[f32; 3]; 3],
+    pub prim: u32,
+}
+
+/// Triangles of a BVH's leaves in slot order: `tris[i]` is scene triangle `prim_indices[i]`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TriStore {
+    pub tris: Vec<WTri>,
+}
+
+impl TriStore {
+    /// `prim_indices` mapped to their triangles. An index out of range (malformed input) becomes a
+    /// degenerate triangle that is never hit, with its index kept so counters still see the test.
+    pub fn new(prim_indices: &[u32], tris: &[Triangle]) -> TriStore {
+        let tris = prim_indices
+            .iter()
+            .map(|&p| match tris.get(p as usize) {
+                Some(t) => WTri {
+                    v: t.v.map(|v| v.to_array()),
+                    prim: p,
+                },
+                None => WTri {
+                    v: [[f32::NAN; 3]; 3],
+                    prim: p,
+                },
+            })
+            .collect();
+        TriStore { tris }
+    }
+}
+
+/// A ray-triangle test over [`WTri`]: per-ray setup once, then one call per triangle returning the
+/// hit distance (range-checked by [`accept`]).
+pub trait TriTest: Sync {
+    type Ray;
+    fn prepare(ray: &Ray) -> Self::Ray;
+    fn test(r: &Self::Ray, tri: &WTri) -> Option<f32>;
+}
+
+/// The reference: [`intersect_triangle`] in f64, bit-identical to brute force.
+pub struct Exact;
+
+impl TriTest for Exact {
+    type Ray = (Vec3, Vec3);
+    #[inline(always)]
+    fn prepare(ray: &Ray) -> (Vec3, Vec3) {
+        (ray.origin, ray.dir)
+    }
+    #[inline(always)]
+    fn test(r: &(Vec3, Vec3), tri: &WTri) -> Option<f32> {
+        let t = Triangle {
+            v: tri.v.map(Vec3::from_array),
+        };
+        intersect_triangle(r.0, r.1, &t)
+    }
+}
+
+/// Per-ray data of the watertight test (Woop 2013 section 3, fig. 6): the dominant axis `kz` of
+/// the direction, the other two (`kx`, `ky`, swapped when `dir[kz] < 0` to keep the winding) and
+/// the shear constants that map the ray to +z.
+#[derive(Clone, Copy, Debug)]
+pub struct WoopRay {
+    org: [f32; 3],
+    k: [usize; 3],
+    s: [f32; 3],
+}
+
+impl WoopRay {
+    #[inline(always)]
+    pub fn new(origin: Vec3, dir: Vec3) -> WoopRay {
+        let a = dir.abs();
+        let kz = if a.x >= a.y && a.x >= a.z {
+            0
+        } else if a.y >= a.z {
+            1
+        } else {
+            2
+        };
+        let mut kx = (kz + 1) % 3;
+        let mut ky = (kx + 1) % 3;
+        let d = dir.to_array();
+        if d[kz] < 0.0 {
+            std::mem::swap(&mut kx, &mut ky);
+        }
+        WoopRay {
+            org: origin.to_array(),
+            k: [kx, ky, kz],
+            s: [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]],
+        }
+    }
+}
+
+/// |det| range in which the f32 evaluation is trusted: outside it (coordinates beyond about 1e15
+/// or below 1e-15, whose products overflow or lose digits to subnormals) the test is redone in f64,
+/// like Woop 2013's fallback for an edge function exactly 0 (section 3.3). Keeps the fast path
+/// scale-free (issue 15) at no cost for ordinary scenes.
+const DET_MIN: f32 = 1e-30;
+const DET_MAX: f32 = 1e30;
+
+/// Woop, Benthin and Wald 2013, fig. 6, without backface culling. Watertight: an edge shared by two
+/// triangles gives both the same edge function (up to sign), so no ray passes between them.
+/// Returns t (positive-range check left to [`accept`]).
+#[inline(always)]
+pub fn intersect_watertight(r: &WoopRay, tri: &WTri) -> Option<f32> {
+    let [kx, ky, kz] = r.k;
+    let [sx, sy, sz] = r.s;
+    let o = r.org;
+    let a = [tri.v[0][0] - o[0], tri.v[0][1] - o[1], tri.v[0][2] - o[2]];
+    let b = [tri.v[1][0] - o[0], tri.v[1][1] - o[1], tri.v[1][2] - o[2]];
+    let c = [tri.v[2][0] - o[0], tri.v[2][1] - o[1], tri.v[2][2] - o[2]];
+    // Shear (eq. 3): vertices in the ray's frame, where the ray is the +z axis through (0, 0).
+    let (ax, ay) = (a[kx] - sx * a[kz], a[ky] - sy * a[kz]);
+    let (bx, by) = (b[kx] - sx * b[kz], b[ky] - sy * b[kz]);
+    let (cx, cy) = (c[kx] - sx * c[kz], c[ky] - sy * c[kz]);
+    // Scaled barycentrics as 2D edge functions (section 3.2).
+    let u = cx * by - cy * bx;
+    let v = ax * cy - ay * cx;
+    let w = bx * ay - by * ax;
+    let det = u + v + w;
+    // An edge function exactly 0 (the ray on an edge) or a det outside the trusted range
+    // (including NaN and inf) is decided in f64 (section 3.3).
+    if u == 0.0 || v == 0.0 || w == 0.0 || !(det.abs() >= DET_MIN && det.abs() <= DET_MAX) {
+        return intersect_watertight_f64(r, tri);
+    }
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return None;
+    }
+    let t = u * (sz * a[kz]) + v * (sz * b[kz]) + w * (sz * c[kz]);
+    Some(t / det)
+}
+
+/// [`intersect_watertight`] in f64 (the inputs convert exactly): the rare fallback.
+#[cold]
+#[inline(never)]
+fn intersect_watertight_f64(r: &WoopRay, tri: &WTri) -> Option<f32> {
+    let [kx, ky, kz] = r.k;
+    let d = |i: usize, k: usize| tri.v[i][k] as f64 - r.org[k] as f64;
+    let (sx, sy, sz) = (r.s[0] as f64, r.s[1] as f64, r.s[2] as f64);
+    let sh = |i: usize| (d(i, kx) - sx * d(i, kz), d(i, ky) - sy * d(i, kz));
+    let ((ax, ay), (bx, by), (cx, cy)) = (sh(0), sh(1), sh(2));
+    let u = cx * by - cy * bx;
+    let v = ax * cy - ay * cx;
+    let w = bx * ay - by * ax;
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return None;
+    }
+    let det = u + v + w;
+    if det == 0.0 || !det.is_finite() {
+        return None;
+    }
+    let t = (u * d(0, kz) + v * d(1, kz) + w * d(2, kz)) * sz / det;
+    Some(t as f32)
+}
+
+/// The timed test: [`intersect_watertight`].
+pub struct Watertight;
+
+impl TriTest for Watertight {
+    type Ray = WoopRay;
+    #[inline(always)]
+    fn prepare(ray: &Ray) -> WoopRay {
+        WoopRay::new(ray.origin, ray.dir)
+    }
+    #[inline(always)]
+    fn test(r: &WoopRay, tri: &WTri) -> Option<f32> {
+        intersect_watertight(r, tri)
+    }
+}
+
+/// Per-ray box-test data: origin, inverse direction and, per axis, which of the six box
+/// coordinates (`[min.x, min.y, min.z, max.x, max.y, max.z]`) is the near plane.
+#[derive(Clone, Copy, Debug)]
+pub struct SlabRay {
+    pub origin: [f32; 3],
+    pub inv: [f32; 3],
+    pub near: [usize; 3],
+    pub far: [usize; 3],
+    /// Some direction component is 0: use [`RayBox::hit`] instead (exact for parallel rays).
+    pub parallel: bool,
+}
+
+impl SlabRay {
+    #[inline(always)]
+    pub fn new(ray: &Ray) -> SlabRay {
+        let d = ray.dir.to_array();
+        let inv = d.map(|d| 1.0 / d);
+        let near = [0, 1, 2].map(|a| if inv[a] >= 0.0 { a } else { a + 3 });
+        SlabRay {
+            origin: ray.origin.to_array(),
+            inv,
+            near,
+            far: near.map(|n| (n + 3) % 6),
+            // A zero (or subnormal) component has no finite inverse: (bound - origin) * inf is NaN
+            // on a slab plane. Such rays take `RayBox::hit`; every other ray's products are NaN-free.
+            parallel: inv.iter().any(|i| !i.is_finite()),
+        }
+    }
+
+    /// Entry distance of `b` within [0, tmax] (conservative like [`RayBox::hit`]: far scaled by
+    /// [`SLAB_ROBUST`]); the near/far planes are fixed per ray, so an empty box (min = +inf,
+    /// max = -inf) always misses.
+    #[inline(always)]
+    pub fn hit(&self, b: &Aabb, tmax: f32) -> Option<f32> {
+        let c = aabb_array(b);
+        let (o, i) = (self.origin, self.inv);
+        let t = |k: usize, a: usize| (c[k] - o[a]) * i[a];
+        let near = fmax(fmax(t(self.near[0], 0), t(self.near[1], 1)), fmax(t(self.near[2], 2), 0.0));
+        let far = fmin(fmin(t(self.far[0], 0), t(self.far[1], 1)), fmin(t(self.far[2], 2), tmax)) * SLAB_ROBUST;
+        if near <= far {
+            Some(near)
+        } else {
+            None
+        }
+    }
+}
+
+#[inline(always)]
+fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+#[inline(always)]
+fn fmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// The six coordinates of a box as an array (min then max).
+#[inline(always)]
+fn aabb_array(b: &Aabb) -> [f32; 6] {
+    [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z]
+}
+
+/// A box test chosen per ray: the sign-selected slab test, or [`RayBox`] for parallel rays.
+trait BoxTest {
+    fn hit(&self, b: &Aabb, tmax: f32) -> Option<f32>;
+}
+impl BoxTest for SlabRay {
+    #[inline(always)]
+    fn hit(&self, b: &Aabb, tmax: f32) -> Option<f32> {
+        SlabRay::hit(self, b, tmax)
+    }
+}
+impl BoxTest for RayBox {
+    #[inline(always)]
+    fn hit(&self, b: &Aabb, tmax: f32) -> Option<f32> {
+        RayBox::hit(self, b, tmax)
+    }
+}
+
+/// A binary BVH prepared for the timed path: its nodes (the 32-byte nodes as they are: siblings
+/// adjacent, so both child boxes of a node share a cache line) and its triangles in slot order.
+pub struct FastBvh2<'a> {
+    nodes: &'a [Node],
+    store: TriStore,
+}
+
+impl<'a> FastBvh2<'a> {
+    /// O(triangles): copies the triangles into slot order (done before timing).
+    pub fn new(bvh: &'a Bvh, tris: &[Triangle]) -> FastBvh2<'a> {
+        FastBvh2 {
+            nodes: &bvh.nodes,
+            store: TriStore::new(&bvh.prim_indices, tris),
+        }
+    }
+
+    /// Closest hits with the watertight f32 test, no counters: the timed path.
+    pub fn hits(&self, rays: &[Ray]) -> Vec<Hit> {
+        par_hits(rays, |stack, ray| self.one::<Watertight, false>(ray, stack).0)
+    }
+
+    /// Hits and counters with the test `T` (untimed: the counting instantiation).
+    pub fn trace<T: TriTest>(&self, rays: &[Ray]) -> TraceStats {
+        crate::trace_with(rays, Stack::new, |stack, ray| self.one::<T, true>(ray, stack))
+    }
+
+    #[inline(always)]
+    fn one<T: TriTest, const STATS: bool>(&self, ray: &Ray, stack: &mut Stack) -> (Hit, u32, u32) {
+        let sr = SlabRay::new(ray);
+        if sr.parallel {
+            bvh2_one::<T, RayBox, STATS>(self.nodes, &self.store.tris, ray, &RayBox::new(ray), stack)
+        } else {
+            bvh2_one::<T, SlabRay, STATS>(self.nodes, &self.store.tris, ray, &sr, stack)
+        }
+    }
+}
+
+/// Runs `one` over all rays in parallel (rayon chunks, a stack per task), hits only.
+pub fn par_hits<F>(rays: &[Ray], one: F) -> Vec<Hit>
+where
+    F: Fn(&mut Stack, &Ray) -> Hit + Sync + Send,
+{
+    let mut hits = vec![Hit::NONE; rays.len()];
+    hits.par_chunks_mut(CHUNK)
+        .zip(rays.par_chunks(CHUNK))
+        .for_each_init(Stack::new, |stack, (h, r)| {
+            for (h, r) in h.iter_mut().zip(r) {
+                *h = one(stack, r);
+            }
+        });
+    hits
+}
+
+/// Rays per rayon task (as in `trace_with`).
+const CHUNK: usize = 1024;
+
+/// `crate::traverse::trace_one` with the triangles in slot order, a generic box and triangle test
+/// and optional counters; same visiting order and culling rule (so `Exact` finds the same hits).
+#[inline(always)]
+fn bvh2_one<T: TriTest, B: BoxTest, const STATS: bool>(
+    nodes: &[Node],
+    tris: &[WTri],
+    ray: &Ray,
+    rb: &B,
+    stack: &mut Stack,
+) -> (Hit, u32, u32) {
+    let mut best = Hit {
+        t: ray.tmax,
+        prim: u32::MAX,
+    };
+    let (mut steps, mut tests) = (0u32, 0u32);
+    let Some(root) = nodes.first() else {
+        return (Hit::NONE, 0, 0);
+    };
+    if ray.tmax.is_nan() || ray.tmax <= 0.0 || root.bounds.is_empty() || rb.hit(&root.bounds, best.t).is_none() {
+        return (Hit::NONE, 0, 0);
+    }
+    let tr = T::prepare(ray);
+    stack.clear();
+    let mut cur = 0u32;
+    // A valid tree enters each node at most once per ray; the bound stops a cycle in a malformed one.
+    let mut budget = nodes.len();
+    'outer: loop {
+        if budget == 0 {
+            break;
+        }
+        budget -= 1;
+        if STATS {
+            steps += 1;
+        }
+        let node = &nodes[cur as usize];
+        if node.count > 0 {
+            let first = (node.first as usize).min(tris.len());
+            let end = first.saturating_add(node.count as usize).min(tris.len());
+            for tri in &tris[first..end] {
+                if STATS {
+                    tests += 1;
+                }
+                if let Some(t) = T::test(&tr, tri) {
+                    accept(t, tri.prim, &mut best);
+                }
+            }
+        } else {
+            let l = node.first as usize;
+            if let (Some(ln), Some(rn)) = (nodes.get(l), nodes.get(l.wrapping_add(1))) {
+                let hl = rb.hit(&ln.bounds, best.t);
+                let hr = rb.hit(&rn.bounds, best.t);
+                match (hl, hr) {
+                    (Some(tl), Some(tr)) => {
+                        if tr < tl {
+                            stack.push((l as u32, tl));
+                            cur = l as u32 + 1;
+                        } else {
+                            stack.push((l as u32 + 1, tr));
+                            cur = l as u32;
+                        }
+                        continue;
+                    }
+                    (Some(_), None) => {
+                        cur = l as u32;
+                        continue;
+                    }
+                    (None, Some(_)) => {
+                        cur = l as u32 + 1;
+                        continue;
+                    }
+                    (None, None) => {}
+                }
+            }
+        }
+        // Pop until a node whose entry is not beyond the closest hit (margin as in `trace_one`).
+        while let Some((n, entry)) = stack.pop() {
+            if entry <= best.t * SLAB_ROBUST {
+                cur = n;
+                continue 'outer;
+            }
+        }
+        break;
+    }
+    let hit = if best.prim == u32::MAX { Hit::NONE } else { best };
+    (hit, steps, tests)
+}
+
+/// The tolerance of the f32 path against the exact one, per ray: the same triangle; or both hit
+/// and `t` agrees within `1e-5` relative (two triangles within f32 rounding of each other along
+/// the ray: shared edges, coplanar overlaps); or one side misses and the other's hit is within f32
+/// rounding of an edge of its triangle (f64 barycentric coordinate below `1e-5`: the ray grazes an
+/// edge, where f32 and f64 may decide differently). Returns why not, if not.
+pub fn agrees(tris: &[Triangle], ray: &Ray, fast: &Hit, exact: &Hit) -> Result<(), String> {
+    const T_TOL: f32 = 1e-5;
+    const EDGE_TOL: f64 = 1e-5;
+    if fast.prim == exact.prim {
+        return Ok(());
+    }
+    if fast.is_hit() && exact.is_hit() {
+        if (fast.t - exact.t).abs() <= T_TOL * exact.t.abs() {
+            return Ok(());
+        }
+        return Err(format!("fast {fast:?} and exact {exact:?} differ beyond t tolerance"));
+    }
+    let h = if fast.is_hit() { fast } else { exact };
+    match tris.get(h.prim as usize).and_then(|t| min_barycentric(ray, t)) {
+        Some(b) if b <= EDGE_TOL => Ok(()),
+        b => Err(format!(
+            "fast {fast:?}, exact {exact:?}: hit/miss disagree away from an edge (min barycentric {b:?})"
+        )),
+    }
+}
+
+/// Smallest barycentric coordinate (f64, Möller-Trumbore) of the ray's hit on `tri`'s plane.
+fn min_barycentric(ray: &Ray, tri: &Triangle) -> Option<f64> {
+    let [v0, v1, v2] = tri.v.map(|v| v.as_dvec3());
+    let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
+    let (e1, e2) = (v1 - v0, v2 - v0);
+    let p = d.cross(e2);
+    let det = e1.dot(p);
+    if det == 0.0 || !det.is_finite() {
+        return Some(0.0);
+    }
+    let s = o - v0;
+    let u = s.dot(p) / det;
+    let v = d.dot(s.cross(e1)) / det;
+    Some(u.abs().min(v.abs()).min((1.0 - u - v).abs()))
+}
+
+/// Checks `fast` hits against `exact` hits ray by ray ([`agrees`]); at most `max_edge_cases` rays
+/// may be hit/miss disagreements at an edge (different triangles at the same t are ties, not
+/// counted). Returns the number of rays whose triangle differs at all.
+pub fn check_agreement(
+    tris: &[Triangle],
+    rays: &[Ray],
+    fast: &[Hit],
+    exact: &[Hit],
+    max_edge_cases: usize,
+) -> Result<usize, String> {
+    if fast.len() != rays.len() || exact.len() != rays.len() {
+        return Err("hit counts differ from the ray count".into());
+    }
+    let (mut differ, mut edge) = (0, 0);
+    for (i, ((r, f), e)) in rays.iter().zip(fast).zip(exact).enumerate() {
+        if f.prim != e.prim {
+            differ += 1;
+            edge += (f.is_hit() != e.is_hit()) as usize;
+            agrees(tris, r, f, e).map_err(|m| format!("ray {i}: {m}"))?;
+        }
+    }
+    if edge > max_edge_cases {
+        return Err(format!("{edge} rays hit on one side only (at most {max_edge_cases} allowed)"));
+    }
+    Ok(differ)
+}

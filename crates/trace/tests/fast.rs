@@ -1,0 +1,129 @@
+//! The timed path (`fast`): with the exact test it equals `trace` (hits and counters) bit for bit;
+//! with the watertight f32 test it agrees with brute force within `fast::agrees`' tolerance; it
+//! is watertight on shared edges, scale-free, and identical at any thread count.
+mod common;
+use bvhlab_bvh::Bvh;
+use bvhlab_geom::{Triangle, Vec3};
+use bvhlab_trace::fast::{Exact, Watertight};
+use bvhlab_trace::{brute_force, check_agreement, random_rays, trace, FastBvh2, Ray};
+use common::*;
+
+fn rays_for(tris: &[Triangle], n: usize, seed: u64) -> Vec<Ray> {
+    let idx: Vec<u32> = (0..tris.len() as u32).collect();
+    let b = bounds_of(tris, &idx);
+    let r = tris
+        .iter()
+        .map(|t| (t.bounds().center() - b.center()).length())
+        .fold(0.0, f32::max);
+    random_rays(&b, r, n, seed)
+}
+
+/// Exact instantiation == the reference traversal; watertight == brute force within tolerance
+/// (at most `edge` rays differing at all).
+fn check(bvh: &Bvh, tris: &[Triangle], rays: &[Ray], edge: usize) {
+    let f = FastBvh2::new(bvh, tris);
+    let want = trace(bvh, tris, rays);
+    let got = f.trace::<Exact>(rays);
+    assert_eq!(got.hits, want.hits);
+    assert_eq!(got.steps, want.steps);
+    assert_eq!(got.intersections, want.intersections);
+    let fast = f.hits(rays);
+    assert_eq!(fast, f.trace::<Watertight>(rays).hits, "counting changes no hit");
+    let bf = brute_force(tris, rays);
+    check_agreement(tris, rays, &fast, &bf, edge).unwrap();
+}
+
+#[test]
+fn fast_path_matches_the_reference_on_hand_made_trees() {
+    let tris = random_triangles(3000, 0.05, 3);
+    let rays = rays_for(&tris, 4000, 1);
+    for leaf in [1, 2, 4, 16] {
+        check(&median_bvh(&tris, leaf), &tris, &rays, 4);
+    }
+    check(&one_leaf(&tris[..200]), &tris[..200], &rays[..500], 2);
+    let small = random_triangles(300, 0.1, 5);
+    check(&caterpillar(&small), &small, &rays_for(&small, 500, 4), 2);
+}
+
+#[test]
+fn zero_direction_components_and_empty_inputs() {
+    let tris = random_triangles(500, 0.1, 9);
+    let bvh = median_bvh(&tris, 2);
+    let mut rays = Vec::new();
+    for t in tris.iter().take(100) {
+        let (b, c) = (t.bounds(), t.bounds().center());
+        for (o, d) in [
+            (Vec3::new(b.min.x, c.y, -1.0), Vec3::Z),
+            (Vec3::new(c.x, b.max.y, 2.0), Vec3::NEG_Z),
+            (Vec3::new(-1.0, b.min.y, b.min.z), Vec3::X),
+            (Vec3::new(c.x, -1.0, c.z), Vec3::Y),
+            (Vec3::new(c.x, c.y, c.z), Vec3::ZERO),
+        ] {
+            rays.push(Ray { origin: o, dir: d, tmax: f32::INFINITY });
+        }
+    }
+    check(&bvh, &tris, &rays, 5);
+    let f = FastBvh2::new(&bvh, &tris);
+    assert!(f.hits(&rays).iter().skip(4).step_by(5).all(|h| !h.is_hit()));
+    let empty = Bvh::default();
+    assert!(FastBvh2::new(&empty, &tris).hits(&rays).iter().all(|h| !h.is_hit()));
+}
+
+/// A grid of quads split into triangles: rays aimed exactly at shared edges and vertices (in the
+/// grid's plane coordinates) must hit something (Woop 2013: no ray passes between triangles).
+#[test]
+fn watertight_on_shared_edges_and_vertices() {
+    let n = 40;
+    let mut tris = Vec::new();
+    let p = |i: usize, j: usize| Vec3::new(i as f32 * 0.37, j as f32 * 0.29, 0.5 + 0.01 * (i * j) as f32);
+    for i in 0..n {
+        for j in 0..n {
+            tris.push(Triangle::new(p(i, j), p(i + 1, j), p(i + 1, j + 1)));
+            tris.push(Triangle::new(p(i, j), p(i + 1, j + 1), p(i, j + 1)));
+        }
+    }
+    let bvh = median_bvh(&tris, 2);
+    let f = FastBvh2::new(&bvh, &tris);
+    let mut rays = Vec::new();
+    for i in 1..n {
+        for j in 1..n {
+            let v = p(i, j);
+            let mid = (p(i, j) + p(i + 1, j + 1)) * 0.5; // on the diagonal edge
+            for target in [v, mid] {
+                let origin = Vec3::new(3.0, 4.0, 20.0);
+                let d = (target - origin).normalize();
+                rays.push(Ray { origin, dir: d, tmax: f32::INFINITY });
+            }
+        }
+    }
+    let hits = f.hits(&rays);
+    let missed = hits.iter().filter(|h| !h.is_hit()).count();
+    assert_eq!(missed, 0, "rays through shared edges or vertices passed through the mesh");
+}
+
+/// The f32 test falls back to f64 outside its trusted range: the same scene at 1e-30 and 1e30.
+#[test]
+fn tiny_and_huge_scenes() {
+    let base = random_triangles(1000, 0.05, 11);
+    for s in [1e-30f32, 1e-12, 1e12, 1e30] {
+        let tris: Vec<Triangle> = base.iter().map(|t| Triangle { v: t.v.map(|v| v * s) }).collect();
+        let bvh = median_bvh(&tris, 2);
+        let rays = rays_for(&tris, 1500, 2);
+        check(&bvh, &tris, &rays, 3);
+        let hits = FastBvh2::new(&bvh, &tris).hits(&rays).iter().filter(|h| h.is_hit()).count();
+        assert!(hits > 50, "scale {s}: {hits} hits");
+    }
+}
+
+#[test]
+fn identical_at_any_thread_count() {
+    let tris = random_triangles(2000, 0.05, 21);
+    let bvh = median_bvh(&tris, 2);
+    let rays = rays_for(&tris, 5000, 8);
+    let f = FastBvh2::new(&bvh, &tris);
+    let run = |n| {
+        rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| f.hits(&rays))
+    };
+    assert_eq!(run(1), run(3));
+}
+
