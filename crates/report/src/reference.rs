@@ -4,6 +4,7 @@
 //! `frantal_scenes_and_variants.md` gives triangle counts, and "a scene reproduces a table row only
 //! where it is the same model (same triangle count)". Scenes whose name looks like a thesis scene but
 //! whose triangle count differs are listed as different models and not compared.
+use crate::analysis::{on_rays, RowMetric};
 use crate::frame;
 use bvhlab_pipeline::ResultRow;
 use polars::prelude::DataFrame;
@@ -165,34 +166,25 @@ pub const EMC_BUILD_LABEL: &str = "EMC-64-var / Morton build time [%]";
 /// A comparison is marked as reproduced when |difference| is at most this many percent.
 pub const WITHIN_PERCENT: f64 = 3.0;
 
-/// A thesis table and the row value it corresponds to.
-pub struct MetricMap {
-    pub file: &'static str,
-    pub label: &'static str,
-    /// Only rows measured with this ray set kind (prefix of `rays_kind`) compare, if set.
-    pub rays: Option<&'static str>,
-    pub value: fn(&ResultRow) -> Option<f64>,
-}
-
-/// Thesis tables 10, 15-19. Traversal counts use the thesis' primary rays (800x800); our camera is
+/// Thesis tables 10, 15-19 (`id`: the table file). Traversal counts use the thesis' primary rays (800x800); our camera is
 /// not the thesis' camera, so those compare only roughly.
-pub const METRICS: &[MetricMap] = &[
-    MetricMap { file: "frantal_t10_sah_cost.tsv", label: "SAH cost", rays: None, value: |r| Some(r.sah_cost) },
-    MetricMap {
-        file: "frantal_t15_traversal_steps_primary.tsv",
+pub const METRICS: &[RowMetric] = &[
+    RowMetric { id: "frantal_t10_sah_cost.tsv", label: "SAH cost", rays: None, value: |r| Some(r.sah_cost) },
+    RowMetric {
+        id: "frantal_t15_traversal_steps_primary.tsv",
         label: "traversal steps / primary ray",
         rays: Some("primary"),
         value: |r| r.traversal_steps_per_ray,
     },
-    MetricMap {
-        file: "frantal_t16_intersections_primary.tsv",
+    RowMetric {
+        id: "frantal_t16_intersections_primary.tsv",
         label: "intersections / primary ray",
         rays: Some("primary"),
         value: |r| r.intersections_per_ray,
     },
-    MetricMap { file: "frantal_t17_refs_per_leaf.tsv", label: "refs per leaf", rays: None, value: |r| Some(r.refs_per_leaf) },
-    MetricMap { file: "frantal_t18_inner_sa_ratio.tsv", label: "inner SA ratio", rays: None, value: |r| Some(r.inner_sa_ratio) },
-    MetricMap { file: "frantal_t19_leaf_sa_ratio.tsv", label: "leaf SA ratio", rays: None, value: |r| Some(r.leaf_sa_ratio) },
+    RowMetric { id: "frantal_t17_refs_per_leaf.tsv", label: "refs per leaf", rays: None, value: |r| Some(r.refs_per_leaf) },
+    RowMetric { id: "frantal_t18_inner_sa_ratio.tsv", label: "inner SA ratio", rays: None, value: |r| Some(r.inner_sa_ratio) },
+    RowMetric { id: "frantal_t19_leaf_sa_ratio.tsv", label: "leaf SA ratio", rays: None, value: |r| Some(r.leaf_sa_ratio) },
 ];
 
 const SCENES_MD: &str = "frantal_scenes_and_variants.md";
@@ -415,10 +407,8 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
             if same_model(r, &scenes).is_none() || !consts_ok(r) {
                 continue;
             }
-            if let Some(kind) = rays {
-                if !r.rays_kind.as_deref().is_some_and(|k| k.starts_with(kind)) {
-                    continue;
-                }
+            if !on_rays(r, rays) {
+                continue;
             }
             for m in methods {
                 let Some(extra) = row_matches(r, m) else { continue };
@@ -469,9 +459,9 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
     };
 
     for metric in METRICS {
-        let path = dir.join(metric.file);
+        let path = dir.join(metric.id);
         if !path.exists() {
-            rep.notes.push(format!("{} not found: {} not compared.", metric.file, metric.label));
+            rep.notes.push(format!("{} not found: {} not compared.", metric.id, metric.label));
             continue;
         }
         let table = frame::read_paper_table(&path)?;
