@@ -133,8 +133,7 @@ pub const PAR_MIN: usize = 1 << 12;
 
 /// One primitive per leaf; the caller applies the SAH compaction.
 pub fn build(boxes: &[Aabb], sorted: &SortedCodes, cfg: &AacConfig) -> Bvh {
-    let n = sorted.order.len();
-    assert_eq!(sorted.codes.len(), n, "aac: one code per sorted primitive");
+    let n = sorted.len("aac");
     assert!(n <= boxes.len(), "aac: more sorted primitives than boxes");
     if n == 0 {
         return Bvh::default();

@@ -22,12 +22,7 @@ const GRAIN: usize = 4096;
 
 /// One primitive per leaf; the caller applies the SAH compaction.
 pub fn build(boxes: &[Aabb], sorted: &SortedCodes) -> Bvh {
-    let n = sorted.order.len();
-    assert_eq!(
-        sorted.codes.len(),
-        n,
-        "lbvh: codes and order differ in length"
-    );
+    let n = sorted.len("lbvh");
     if n == 0 {
         return Bvh::default();
     }

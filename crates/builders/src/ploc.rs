@@ -54,12 +54,7 @@ const CHUNK: usize = 2048;
 
 /// One primitive per leaf; the caller applies the SAH compaction.
 pub fn build(boxes: &[Aabb], sorted: &SortedCodes, cfg: &PlocConfig) -> Bvh {
-    let n = sorted.order.len();
-    assert_eq!(
-        sorted.codes.len(),
-        n,
-        "ploc: codes and order differ in length"
-    );
+    let n = sorted.len("ploc");
     if n == 0 {
         return Bvh::default();
     }

@@ -40,15 +40,7 @@ pub(crate) fn make_refs(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimRef>, Rang
             r
         })
         .collect();
-    (
-        refs,
-        Range {
-            begin: 0,
-            end: boxes.len(),
-            bounds,
-            cbounds,
-        },
-    )
+    (refs, Range::root(boxes.len(), bounds, cbounds))
 }
 
 /// Hoare-style in-place partition of `refs[r.begin..r.end]` (Wald 2007 via thesis 3.1.1): elements
@@ -88,20 +80,7 @@ pub(crate) fn partition(
         j -= 1;
     }
     let mid = r.begin + i;
-    (
-        Range {
-            begin: r.begin,
-            end: mid,
-            bounds: lb,
-            cbounds: lcb,
-        },
-        Range {
-            begin: mid,
-            end: r.end,
-            bounds: rb,
-            cbounds: rcb,
-        },
-    )
+    r.split(mid, (lb, lcb), (rb, rcb))
 }
 
 /// Object-median split on `axis`: the lower half by (centre, index) goes left. The index tie-break
@@ -125,20 +104,7 @@ pub(crate) fn object_median(refs: &mut [PrimRef], r: &Range, axis: usize) -> (Ra
     let (lb, lcb) = bounds(&s[..m]);
     let (rb, rcb) = bounds(&s[m..]);
     let mid = r.begin + m;
-    (
-        Range {
-            begin: r.begin,
-            end: mid,
-            bounds: lb,
-            cbounds: lcb,
-        },
-        Range {
-            begin: mid,
-            end: r.end,
-            bounds: rb,
-            cbounds: rcb,
-        },
-    )
+    r.split(mid, (lb, lcb), (rb, rcb))
 }
 
 /// Bounds and centroid bounds of a slice of references.
@@ -177,12 +143,7 @@ pub(crate) fn make_refs_parallel(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimR
         || (BoxA::EMPTY, BoxA::EMPTY),
         |a, b| (a.0.union(&b.0), a.1.union(&b.1)),
     );
-    let root = Range {
-        begin: 0,
-        end: refs.len(),
-        bounds,
-        cbounds,
-    };
+    let root = Range::root(refs.len(), bounds, cbounds);
     (refs, root)
 }
 
@@ -244,20 +205,7 @@ pub(crate) fn partition_parallel(
         );
     let mid = n_left;
     swap_misplaced(&mut s[..], flags, mid, chunk);
-    (
-        Range {
-            begin: r.begin,
-            end: r.begin + mid,
-            bounds: lb,
-            cbounds: lcb,
-        },
-        Range {
-            begin: r.begin + mid,
-            end: r.end,
-            bounds: rb,
-            cbounds: rcb,
-        },
-    )
+    r.split(r.begin + mid, (lb, lcb), (rb, rcb))
 }
 
 /// The swap step of [`partition_parallel`]: swaps `a_k` with `b_{M-1-k}` (see there) for all k.

@@ -11,3 +11,12 @@ pub struct SortedCodes<'a> {
     /// Meaningful bits; the most significant is bit `code_bits - 1`.
     pub code_bits: u32,
 }
+
+impl SortedCodes<'_> {
+    /// The number of sorted primitives; panics (naming `builder`) when codes and order differ in
+    /// length.
+    pub fn len(&self, builder: &str) -> usize {
+        assert_eq!(self.codes.len(), self.order.len(), "{builder}: codes and order differ in length");
+        self.order.len()
+    }
+}

@@ -103,12 +103,7 @@ pub(crate) fn build_local(
         let b = bounds(i);
         root_bounds.grow(b.min.into(), b.max.into());
     }
-    let root = Range {
-        begin: 0,
-        end: n,
-        bounds: root_bounds,
-        cbounds: BoxA::EMPTY,
-    };
+    let root = Range::root(n, root_bounds, BoxA::EMPTY);
     let nodes = build_nodes(n, root, |r| s.split::<false>(r, cfg));
     // All three arrays hold the same primitive set in every node range; take the x-sorted one.
     (nodes, s.sorted[0].iter().map(|p| p.idx).collect())
@@ -131,12 +126,7 @@ pub(crate) fn build_weighted(boxes: &[Aabb], weights: &[u32]) -> (Vec<Node>, Vec
     for b in boxes {
         root_bounds.grow(b.min.into(), b.max.into());
     }
-    let root = Range {
-        begin: 0,
-        end: n,
-        bounds: root_bounds,
-        cbounds: BoxA::EMPTY,
-    };
+    let root = Range::root(n, root_bounds, BoxA::EMPTY);
     // leaf = 1: single-item leaves, no SAH leaf test (the cost constants are then unused).
     let single = TopDownConfig {
         leaf: 1,
@@ -296,19 +286,6 @@ impl Sweeper {
             debug_assert_eq!(l, best.n_left);
             arr[l..].copy_from_slice(&self.tmp);
         }
-        Some((
-            Range {
-                begin: r.begin,
-                end: mid,
-                bounds: lb,
-                cbounds: BoxA::EMPTY,
-            },
-            Range {
-                begin: mid,
-                end: r.end,
-                bounds: rb,
-                cbounds: BoxA::EMPTY,
-            },
-        ))
+        Some(r.split(mid, (lb, BoxA::EMPTY), (rb, BoxA::EMPTY)))
     }
 }

@@ -14,9 +14,22 @@ pub(crate) struct Range {
 }
 
 impl Range {
+    /// `[0, n)` with its bounds and centroid bounds.
+    pub fn root(n: usize, bounds: BoxA, cbounds: BoxA) -> Range {
+        Range { begin: 0, end: n, bounds, cbounds }
+    }
     #[inline]
     pub fn len(&self) -> usize {
         self.end - self.begin
+    }
+    /// The two children of a split at `mid` (`begin < mid < end`), with the (bounds, centroid
+    /// bounds) of each side.
+    #[inline]
+    pub fn split(&self, mid: usize, left: (BoxA, BoxA), right: (BoxA, BoxA)) -> (Range, Range) {
+        (
+            Range { begin: self.begin, end: mid, bounds: left.0, cbounds: left.1 },
+            Range { begin: mid, end: self.end, bounds: right.0, cbounds: right.1 },
+        )
     }
 }
 

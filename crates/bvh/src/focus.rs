@@ -140,34 +140,36 @@ mod tests {
         (Bvh { nodes, prim_indices: vec![0, 1, 2, 3] }, boxes)
     }
 
+    /// `focus_cost` of `tree()` with the default constants, for the primitives in focus.
+    fn focus_of(in_focus: &[bool]) -> (usize, f64) {
+        let (bvh, boxes) = tree();
+        focus_cost(&bvh, in_focus, &boxes, CostParams::default()).unwrap()
+    }
+
     #[test]
     fn subtree_of_two_leaves() {
-        let (bvh, boxes) = tree();
-        let c = CostParams::default();
         // Focus p2, p3: LCA is node 2 (box 2x1x1, area 10), focus box is the same box.
-        let (n, cost) = focus_cost(&bvh, &[false, false, true, true], &boxes, c).unwrap();
+        let (n, cost) = focus_of(&[false, false, true, true]);
         assert_eq!(n, 2);
         let want = 3.0 * 10.0 / 10.0 + 2.0 * (6.0 + 6.0) / 10.0;
         assert!((cost - want).abs() < 1e-12, "{cost} vs {want}");
         // Focus p3 alone: LCA is its leaf; normalized by its own box: c_I * 1.
-        let (n, cost) = focus_cost(&bvh, &[false, false, false, true], &boxes, c).unwrap();
+        let (n, cost) = focus_of(&[false, false, false, true]);
         assert_eq!((n, cost), (1, 2.0));
     }
 
     #[test]
     fn split_focus_uses_root_and_focus_area() {
-        let (bvh, boxes) = tree();
-        let c = CostParams::default();
         // p1 and p2 live in different subtrees: LCA is the root; normalized by the union of their
         // boxes (x 1..11: area 2*(10+1+10) = 42), not by the root's (x 0..12: area 50).
-        let (n, cost) = focus_cost(&bvh, &[false, true, true, false], &boxes, c).unwrap();
+        let (n, cost) = focus_of(&[false, true, true, false]);
         assert_eq!(n, 2);
         let inner = 50.0 + 10.0 + 10.0;
         let want = (3.0 * inner + 2.0 * 24.0) / 42.0;
         assert!((cost - want).abs() < 1e-12, "{cost} vs {want}");
         // Every primitive in focus: the focus box is the root box, so this is eq. 4 itself.
-        let (_, all) = focus_cost(&bvh, &[true; 4], &boxes, c).unwrap();
-        assert!((all - metrics(&bvh, c).sah_cost).abs() < 1e-12);
+        let (_, all) = focus_of(&[true; 4]);
+        assert!((all - metrics(&tree().0, CostParams::default()).sah_cost).abs() < 1e-12);
     }
 
     #[test]

@@ -83,27 +83,15 @@ mod tests {
 
     #[test]
     fn key_depends_on_every_part() {
-        let base = stage_key("build", 1, &p(&[("bins", "16")]), &[Key([1; 32])]);
-        assert_eq!(
-            base,
-            stage_key("build", 1, &p(&[("bins", "16")]), &[Key([1; 32])])
-        );
-        assert_ne!(
-            base,
-            stage_key("compact", 1, &p(&[("bins", "16")]), &[Key([1; 32])])
-        );
-        assert_ne!(
-            base,
-            stage_key("build", 2, &p(&[("bins", "16")]), &[Key([1; 32])])
-        );
-        assert_ne!(
-            base,
-            stage_key("build", 1, &p(&[("bins", "8")]), &[Key([1; 32])])
-        );
-        assert_ne!(
-            base,
-            stage_key("build", 1, &p(&[("bins", "16")]), &[Key([2; 32])])
-        );
+        let key = |stage: &str, version: u32, bins: &str, input: &[Key]| {
+            stage_key(stage, version, &p(&[("bins", bins)]), input)
+        };
+        let base = key("build", 1, "16", &[Key([1; 32])]);
+        assert_eq!(base, key("build", 1, "16", &[Key([1; 32])]));
+        assert_ne!(base, key("compact", 1, "16", &[Key([1; 32])]));
+        assert_ne!(base, key("build", 2, "16", &[Key([1; 32])]));
+        assert_ne!(base, key("build", 1, "8", &[Key([1; 32])]));
+        assert_ne!(base, key("build", 1, "16", &[Key([2; 32])]));
         assert_ne!(base, stage_key("build", 1, &p(&[("bins", "16")]), &[]));
         // Length prefixes keep concatenations apart.
         assert_ne!(

@@ -83,18 +83,21 @@ impl LockTiming {
     }
 }
 
-/// This machine's host name (`/etc/hostname`, `$HOSTNAME`, else "unknown"), without whitespace.
+/// This machine's host name as the system gives it: `/etc/hostname` (trimmed), `$HOSTNAME`, else
+/// "unknown" (manifests record it so).
+pub fn system_host_name() -> String {
+    fs::read_to_string("/etc/hostname")
+        .map(|s| s.trim().to_string())
+        .ok()
+        .filter(|s| !s.is_empty())
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .unwrap_or_else(|| "unknown".into())
+}
+
+/// [`system_host_name`] without whitespace (lock files and temporary file names).
 pub fn host_name() -> &'static str {
     static H: OnceLock<String> = OnceLock::new();
-    H.get_or_init(|| {
-        let h = fs::read_to_string("/etc/hostname")
-            .map(|s| s.trim().to_string())
-            .ok()
-            .filter(|s| !s.is_empty())
-            .or_else(|| std::env::var("HOSTNAME").ok())
-            .unwrap_or_else(|| "unknown".into());
-        h.split_whitespace().collect::<Vec<_>>().join("_")
-    })
+    H.get_or_init(|| system_host_name().split_whitespace().collect::<Vec<_>>().join("_"))
 }
 
 /// 8 hex digits of blake3(host name): tags temporary file names with their writer's host.

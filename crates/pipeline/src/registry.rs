@@ -181,6 +181,9 @@ impl Registry {
     pub fn optimizer(&self, name: &str) -> Result<&OptimizerInfo> {
         find(&self.optimizers, name)
     }
+    pub fn layout(&self, name: &str) -> Result<&LayoutInfo> {
+        find(&self.layouts, name)
+    }
 
     fn code_builder_names(&self) -> String {
         let names: Vec<_> = self

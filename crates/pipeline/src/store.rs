@@ -86,14 +86,8 @@ pub fn cpu_model() -> &'static str {
 
 impl Machine {
     pub fn current() -> Machine {
-        let hostname = fs::read_to_string("/etc/hostname")
-            .map(|s| s.trim().to_string())
-            .ok()
-            .filter(|s| !s.is_empty())
-            .or_else(|| std::env::var("HOSTNAME").ok())
-            .unwrap_or_else(|| "unknown".into());
         Machine {
-            hostname,
+            hostname: crate::lockfile::system_host_name(),
             os: std::env::consts::OS.into(),
             arch: std::env::consts::ARCH.into(),
             cpus: std::thread::available_parallelism()

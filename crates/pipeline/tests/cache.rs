@@ -1193,7 +1193,7 @@ fn builder_version_changes_only_its_build_keys() {
     }
 }
 
-/// Layouts carry their own versions too (`Versions::layouts`): bumping one changes the layout
+/// Layouts carry their own versions too (`Method::version` of their METHOD): bumping one changes the layout
 /// nodes of that layout and of `auto` (which may choose it), and what reads them (measure), only.
 #[test]
 fn layout_version_changes_only_its_layout_keys() {
@@ -1214,9 +1214,12 @@ fn layout_version_changes_only_its_layout_keys() {
             c
         })
         .collect();
-    let nodes = |v: Versions| -> Vec<Vec<(&'static str, Key)>> {
+    // A layout's version is its METHOD's (`Method::version`), read from the runner's registry.
+    let nodes = |bump: Option<&str>| -> Vec<Vec<(&'static str, Key)>> {
         let mut r = Runner::new(Store::open(dir.path()).unwrap());
-        r.versions = v;
+        if let Some(name) = bump {
+            r.registry.layouts.iter_mut().find(|l| l.name == name).unwrap().version = 2;
+        }
         ch.iter()
             .map(|c| {
                 let n = r.chain_nodes(c).unwrap();
@@ -1224,17 +1227,11 @@ fn layout_version_changes_only_its_layout_keys() {
             })
             .collect()
     };
-    let before = nodes(Versions::default());
-    let bumped = Versions {
-        layouts: &[
-            ("bvh2", 1),
-            ("qbvh_chunks", 1),
-            ("octree", 1),
-            ("octree_1bit", 2),
-        ],
-        ..Versions::default()
-    };
-    let after = nodes(bumped);
+    let before = nodes(None);
+    // Version 1 adds nothing to the keys: the same keys as before layouts carried versions.
+    let r = Runner::new(Store::open(dir.path()).unwrap());
+    assert!(r.registry.layouts.iter().all(|l| l.version == 1), "bump the expected keys with a layout's version");
+    let after = nodes(Some("octree_1bit"));
     for ((l, a), b) in layouts.iter().zip(&before).zip(&after) {
         for ((s, ka), (_, kb)) in a.iter().zip(b) {
             let changed = (l.starts_with("octree_1bit") || l.starts_with("auto"))

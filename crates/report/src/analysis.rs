@@ -352,8 +352,9 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
 }
 
-/// A metric over the sweep: which rows (ray set) and which value.
-pub struct SweepMetric {
+/// A value of a result row, measured on which rows (ray set): a sweep's metric, a paper table's.
+pub struct RowMetric {
+    /// What names it (a sweep metric's stem, a paper table's file).
     pub id: &'static str,
     pub label: &'static str,
     /// Only rows whose `rays_kind` starts with this.
@@ -361,26 +362,31 @@ pub struct SweepMetric {
     pub value: fn(&ResultRow) -> Option<f64>,
 }
 
-pub const SWEEP_METRICS: &[SweepMetric] = &[
-    SweepMetric {
+/// Whether `r` was measured with a ray set of kind `kind` (`rays_kind` starts with it; None: any row).
+pub fn on_rays(r: &ResultRow, kind: Option<&str>) -> bool {
+    kind.is_none_or(|k| r.rays_kind.as_deref().is_some_and(|rk| rk.starts_with(k)))
+}
+
+pub const SWEEP_METRICS: &[RowMetric] = &[
+    RowMetric {
         id: "focus_sah_cost",
         label: "focus SAH cost (object subtree, normalized by the object's bounds)",
         rays: None,
         value: |r| r.focus_sah_cost,
     },
-    SweepMetric {
+    RowMetric {
         id: "sah_cost",
         label: "SAH cost (whole scene)",
         rays: None,
         value: |r| Some(r.sah_cost),
     },
-    SweepMetric {
+    RowMetric {
         id: "steps_primary",
         label: "traversal steps per primary ray",
         rays: Some("primary"),
         value: |r| r.traversal_steps_per_ray,
     },
-    SweepMetric {
+    RowMetric {
         id: "duplicate_code_fraction",
         label: "fraction of duplicate codes",
         rays: None,
@@ -399,16 +405,12 @@ pub fn builder_label(r: &ResultRow) -> String {
 
 /// The series of every method for `metric` over `sweep` (methods in row order; a method with no
 /// value on any scene of the sweep is left out).
-pub fn sweep_series(sweep: &Sweep, rows: &[ResultRow], metric: &SweepMetric) -> Vec<Series> {
+pub fn sweep_series(sweep: &Sweep, rows: &[ResultRow], metric: &RowMetric) -> Vec<Series> {
     let labels: BTreeMap<String, String> = method_labels(rows).into_iter().collect();
     let in_sweep: Vec<&ResultRow> = rows
         .iter()
         .filter(|r| sweep.points.iter().any(|(_, s)| *s == r.scene))
-        .filter(|r| {
-            metric
-                .rays
-                .is_none_or(|k| r.rays_kind.as_deref().is_some_and(|rk| rk.starts_with(k)))
-        })
+        .filter(|r| on_rays(r, metric.rays))
         .collect();
     let mut out: Vec<Series> = Vec::new();
     for r in &in_sweep {

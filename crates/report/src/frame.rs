@@ -1,4 +1,5 @@
-//! Result rows -> polars DataFrame -> results.parquet / results.csv.
+//! Result rows -> polars DataFrame -> results.parquet / results.csv; the summary's fronts and bests;
+//! the papers' tables (../shared/reference/*.tsv) read and joined with ours for the reference comparison.
 //!
 //! Columns are derived generically from the serde representation of `ResultRow`, so a field added to
 //! the row (an `Option`, per row.rs) shows up as a column without touching this file.
@@ -200,6 +201,105 @@ pub fn group_best(df: &DataFrame, group: &str, id: &str, v: &str, max: bool) -> 
         .zip(ids.u32()?.iter())
         .zip(vs.f64()?.iter())
         .map(|((g, i), x)| (g.unwrap_or_default().to_string(), i.unwrap_or_default(), x.unwrap_or(f64::NAN)))
+        .collect())
+}
+
+/// A tab-separated table of ../shared/reference read with polars' csv reader, every column as
+/// text (the callers cast; a cell that does not parse becomes null).
+pub fn read_tsv(path: &Path) -> Result<DataFrame, String> {
+    CsvReadOptions::default()
+        .with_has_header(true)
+        .with_infer_schema_length(Some(0))
+        .map_parse_options(|o| o.with_separator(b'\t'))
+        .try_into_reader_with_file_path(Some(path.to_path_buf()))
+        .and_then(|r| r.finish())
+        .map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// The long form of a paper table: one row per (Scene, column) cell, `paper` its value.
+pub fn empty_paper_table() -> PolarsResult<DataFrame> {
+    df!("Scene" => Vec::<String>::new(), "column" => Vec::<String>::new(), "paper" => Vec::<f64>::new())
+}
+
+/// A paper table (header `Scene<TAB>COLUMN...`, one row per scene; `read_tsv`) in long form
+/// (`empty_paper_table`): the cells that parse as numbers.
+pub fn read_paper_table(path: &Path) -> Result<DataFrame, String> {
+    let wide = read_tsv(path)?;
+    let err = |e: PolarsError| format!("{}: {e}", path.display());
+    let Some((scene, values)) = wide.columns().split_first() else {
+        return Err(format!("{}: empty table", path.display()));
+    };
+    let scene = scene.clone().with_name("Scene".into());
+    let mut long = empty_paper_table().map_err(err)?;
+    for v in values {
+        let column = Column::new("column".into(), vec![v.name().as_str(); wide.height()]);
+        let paper = v.cast(&DataType::Float64).map_err(err)?.with_name("paper".into());
+        let part = DataFrame::new(wide.height(), vec![scene.clone(), column, paper]).map_err(err)?;
+        long.vstack_mut(&part).map_err(err)?;
+    }
+    let parsed = long.column("paper").map_err(err)?.is_not_null();
+    long.filter(&parsed).map_err(err)
+}
+
+/// The values of a long paper table at `keys` (scene, column), in key order (None: no such cell):
+/// a left join on (Scene, column); a table holding a cell twice is an error.
+pub fn lookup(table: &DataFrame, keys: &[(String, String)]) -> PolarsResult<Vec<Option<f64>>> {
+    let (scenes, columns): (Vec<&str>, Vec<&str>) = keys.iter().map(|(s, c)| (s.as_str(), c.as_str())).unzip();
+    let ours = df!("Scene" => scenes, "column" => columns)?.with_row_index("i".into(), None)?;
+    let args = JoinArgs { validation: JoinValidation::ManyToOne, ..JoinArgs::new(JoinType::Left) };
+    let joined = ours
+        .join(table, ["Scene", "column"], ["Scene", "column"], args, None)?
+        .sort(["i"], SortMultipleOptions::default().with_maintain_order(true))?;
+    Ok(joined.column("paper")?.f64()?.iter().collect())
+}
+
+/// (ours - paper) / paper * 100 per pair, NaN where paper is 0: the difference column of the
+/// reference comparison.
+pub fn differences(ours: &[f64], paper: &[f64]) -> PolarsResult<Vec<f64>> {
+    let df = df!("ours" => ours, "paper" => paper)?;
+    let (o, p) = (df.column("ours")?.f64()?, df.column("paper")?.f64()?);
+    let diff = &(&(o - p) / p) * 100.0;
+    let nan = Float64Chunked::full("nan".into(), f64::NAN, p.len());
+    let diff = diff.zip_with(&p.not_equal(0.0), &nan)?;
+    Ok(diff.iter().map(|d| d.unwrap_or(f64::NAN)).collect())
+}
+
+/// Bittner 2013 table 2 (`read_tsv`: Scene, triangles_k, method, cost, ocost, update_s, build_s)
+/// inner-joined with our rows `ours` (triangles in thousands, method) on (triangles_k, method):
+/// per match the paper's scene, method and values (NaN where a cell is missing) and the index into
+/// `ours`, in table order, then `ours` order.
+pub fn join_bittner(table: &DataFrame, ours: &[(u64, &str)]) -> PolarsResult<Vec<(String, String, [f64; 4], usize)>> {
+    const VALUES: [&str; 4] = ["cost", "ocost", "update_s", "build_s"];
+    let mut paper = table.select(["Scene", "method"])?.with_row_index("i".into(), None)?;
+    // Counts that are not whole numbers become null and match nothing.
+    paper.with_column(table.column("triangles_k")?.cast(&DataType::UInt64)?)?;
+    for v in VALUES {
+        let c = match table.column(v) {
+            Ok(c) => c.cast(&DataType::Float64)?,
+            Err(_) => Column::full_null(v.into(), table.height(), &DataType::Float64),
+        };
+        paper.with_column(c)?;
+    }
+    let ours = df!(
+        "j" => (0..ours.len() as u32).collect::<Vec<_>>(),
+        "triangles_k" => ours.iter().map(|o| o.0).collect::<Vec<u64>>(),
+        "method" => ours.iter().map(|o| o.1).collect::<Vec<&str>>(),
+    )?;
+    let joined = paper
+        .inner_join(&ours, ["triangles_k", "method"], ["triangles_k", "method"])?
+        .sort(["i", "j"], SortMultipleOptions::default().with_maintain_order(true))?;
+    let (scene, method, j) = (joined.column("Scene")?.str()?, joined.column("method")?.str()?, joined.column("j")?.u32()?);
+    let values = VALUES.map(|v| joined.column(v).and_then(|c| c.f64()).cloned());
+    let values: Vec<Float64Chunked> = values.into_iter().collect::<PolarsResult<_>>()?;
+    Ok((0..joined.height())
+        .map(|k| {
+            (
+                scene.get(k).unwrap_or_default().to_string(),
+                method.get(k).unwrap_or_default().to_string(),
+                [0, 1, 2, 3].map(|c| values[c].get(k).unwrap_or(f64::NAN)),
+                j.get(k).unwrap_or_default() as usize,
+            )
+        })
         .collect())
 }
 

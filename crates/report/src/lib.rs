@@ -20,6 +20,7 @@ use plots::reference::ReferenceFigure;
 use sections::summary::Chip;
 use sections::{Heatmap, Page, Section};
 use plots::{render, Plot};
+use sweeps::PlotFn;
 use std::path::{Path, PathBuf};
 
 const PLOTS_DIR: &str = "plots";
@@ -144,11 +145,7 @@ pub fn write_report_with(
     // drawn per model and mixed rows are left out of them.
     let groups = timing_groups(rows);
     let build_groups = build_timing_groups(rows);
-    let multi = groups.len() > 1;
     let multi_build = build_groups.len() > 1;
-    let suffix = |g: &TimingGroup| if multi { format!(" [{}]", machine_name(&g.machine)) } else { String::new() };
-    let build_suffix =
-        |g: &TimingGroup| if multi_build { format!(" [{}]", machine_name(&g.machine)) } else { String::new() };
     let (pareto, sah, rays) = sections::charts::per_scene(rows, &build_groups, multi_build, &mut plot, &mut problems);
 
     let sweep_section = sweeps::section(rows, &mut |fig, stem, title, problems| plot(fig, stem, title, problems), &mut problems);
@@ -159,42 +156,11 @@ pub fn write_report_with(
     // Sections whose plots and tables use timings: once per CPU model (mixed rows left out). The
     // optimization section plots construction times only (build_machine); the layout section also
     // trace times (machine).
-    let group_rows = |g: &TimingGroup| -> Vec<ResultRow> { g.rows.iter().map(|r| (*r).clone()).collect() };
-    let mut optimization_section = Vec::new();
-    for (gi, g) in build_groups.iter().enumerate() {
-        let owned;
-        let rs: &[ResultRow] = if build_groups.len() == 1 && g.rows.len() == rows.len() {
-            rows
-        } else {
-            owned = group_rows(g);
-            &owned
-        };
-        let (tag, stem_tag) = (build_suffix(g), if multi_build { format!("_{}", machine_name(&g.machine)) } else { String::new() });
-        let opt = optimization::section(
-            rs,
-            reference.as_ref().and_then(|r| r.as_ref().ok()),
-            &mut |fig, stem, title, problems| plot(fig, &format!("{stem}{stem_tag}"), &format!("{title}{tag}"), problems),
-            &mut problems,
-        );
-        optimization_section.extend(opt.into_iter().map(|s| retitle(s, multi_build, &tag, gi)));
-    }
-    let mut layouts_section = Vec::new();
-    for (gi, g) in groups.iter().enumerate() {
-        let owned;
-        let rs: &[ResultRow] = if groups.len() == 1 && g.rows.len() == rows.len() {
-            rows
-        } else {
-            owned = group_rows(g);
-            &owned
-        };
-        let (tag, stem_tag) = (suffix(g), if multi { format!("_{}", machine_name(&g.machine)) } else { String::new() });
-        let lay = layouts::section(
-            rs,
-            &mut |fig, stem, title, problems| plot(fig, &format!("{stem}{stem_tag}"), &format!("{title}{tag}"), problems),
-            &mut problems,
-        );
-        layouts_section.extend(lay.into_iter().map(|s| retitle(s, multi, &tag, gi)));
-    }
+    let reference_ok = reference.as_ref().and_then(|r| r.as_ref().ok());
+    let optimization_section = per_group(rows, &build_groups, &mut plot, &mut problems, &mut |rs, plot, problems| {
+        optimization::section(rs, reference_ok, plot, problems)
+    });
+    let layouts_section = per_group(rows, &groups, &mut plot, &mut problems, &mut layouts::section);
     let mut reference_plots = Vec::new();
     if let Some(Ok(rep)) = &reference {
         for metric in unique(rep.comparisons.iter().map(|c| c.metric.as_str())) {
@@ -377,6 +343,41 @@ fn summary_chips(
 }
 
 /// A per-model copy of a section: the model in its title, a distinct anchor.
+/// A section written once per timing group (`groups`: CPU models), from that group's rows (the
+/// whole table when one group holds every row); with several groups, plot stems, plot titles and
+/// section titles carry the model.
+fn per_group(
+    rows: &[ResultRow],
+    groups: &[TimingGroup],
+    plot: &mut PlotFn,
+    problems: &mut Vec<String>,
+    section: &mut dyn FnMut(&[ResultRow], &mut PlotFn, &mut Vec<String>) -> Option<Section>,
+) -> Vec<Section> {
+    let multi = groups.len() > 1;
+    let mut out = Vec::new();
+    for (gi, g) in groups.iter().enumerate() {
+        let owned: Vec<ResultRow>;
+        let rs: &[ResultRow] = if groups.len() == 1 && g.rows.len() == rows.len() {
+            rows
+        } else {
+            owned = g.rows.iter().map(|r| (*r).clone()).collect();
+            &owned
+        };
+        let (tag, stem_tag) = if multi {
+            (format!(" [{}]", machine_name(&g.machine)), format!("_{}", machine_name(&g.machine)))
+        } else {
+            (String::new(), String::new())
+        };
+        let s = section(
+            rs,
+            &mut |fig, stem, title, problems| plot(fig, &format!("{stem}{stem_tag}"), &format!("{title}{tag}"), problems),
+            problems,
+        );
+        out.extend(s.into_iter().map(|s| retitle(s, multi, &tag, gi)));
+    }
+    out
+}
+
 fn retitle(mut s: Section, multi: bool, tag: &str, gi: usize) -> Section {
     if multi {
         s.title.push_str(tag);

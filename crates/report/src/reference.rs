@@ -4,7 +4,10 @@
 //! `frantal_scenes_and_variants.md` gives triangle counts, and "a scene reproduces a table row only
 //! where it is the same model (same triangle count)". Scenes whose name looks like a thesis scene but
 //! whose triangle count differs are listed as different models and not compared.
+use crate::analysis::{on_rays, RowMetric};
+use crate::frame;
 use bvhlab_pipeline::ResultRow;
+use polars::prelude::DataFrame;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -163,34 +166,25 @@ pub const EMC_BUILD_LABEL: &str = "EMC-64-var / Morton build time [%]";
 /// A comparison is marked as reproduced when |difference| is at most this many percent.
 pub const WITHIN_PERCENT: f64 = 3.0;
 
-/// A thesis table and the row value it corresponds to.
-pub struct MetricMap {
-    pub file: &'static str,
-    pub label: &'static str,
-    /// Only rows measured with this ray set kind (prefix of `rays_kind`) compare, if set.
-    pub rays: Option<&'static str>,
-    pub value: fn(&ResultRow) -> Option<f64>,
-}
-
-/// Thesis tables 10, 15-19. Traversal counts use the thesis' primary rays (800x800); our camera is
+/// Thesis tables 10, 15-19 (`id`: the table file). Traversal counts use the thesis' primary rays (800x800); our camera is
 /// not the thesis' camera, so those compare only roughly.
-pub const METRICS: &[MetricMap] = &[
-    MetricMap { file: "frantal_t10_sah_cost.tsv", label: "SAH cost", rays: None, value: |r| Some(r.sah_cost) },
-    MetricMap {
-        file: "frantal_t15_traversal_steps_primary.tsv",
+pub const METRICS: &[RowMetric] = &[
+    RowMetric { id: "frantal_t10_sah_cost.tsv", label: "SAH cost", rays: None, value: |r| Some(r.sah_cost) },
+    RowMetric {
+        id: "frantal_t15_traversal_steps_primary.tsv",
         label: "traversal steps / primary ray",
         rays: Some("primary"),
         value: |r| r.traversal_steps_per_ray,
     },
-    MetricMap {
-        file: "frantal_t16_intersections_primary.tsv",
+    RowMetric {
+        id: "frantal_t16_intersections_primary.tsv",
         label: "intersections / primary ray",
         rays: Some("primary"),
         value: |r| r.intersections_per_ray,
     },
-    MetricMap { file: "frantal_t17_refs_per_leaf.tsv", label: "refs per leaf", rays: None, value: |r| Some(r.refs_per_leaf) },
-    MetricMap { file: "frantal_t18_inner_sa_ratio.tsv", label: "inner SA ratio", rays: None, value: |r| Some(r.inner_sa_ratio) },
-    MetricMap { file: "frantal_t19_leaf_sa_ratio.tsv", label: "leaf SA ratio", rays: None, value: |r| Some(r.leaf_sa_ratio) },
+    RowMetric { id: "frantal_t17_refs_per_leaf.tsv", label: "refs per leaf", rays: None, value: |r| Some(r.refs_per_leaf) },
+    RowMetric { id: "frantal_t18_inner_sa_ratio.tsv", label: "inner SA ratio", rays: None, value: |r| Some(r.inner_sa_ratio) },
+    RowMetric { id: "frantal_t19_leaf_sa_ratio.tsv", label: "leaf SA ratio", rays: None, value: |r| Some(r.leaf_sa_ratio) },
 ];
 
 const SCENES_MD: &str = "frantal_scenes_and_variants.md";
@@ -236,41 +230,12 @@ struct ThesisScene {
     triangles: u64,
 }
 
-type Table = BTreeMap<String, BTreeMap<String, f64>>;
-
-/// Tab-separated table: header `Scene<TAB>ABBR...`, one row per scene. Unparsable cells are skipped.
-fn read_tsv(path: &Path) -> Result<Table, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
-    let header: Vec<&str> = lines
-        .next()
-        .ok_or_else(|| format!("{}: empty table", path.display()))?
-        .split('\t')
-        .map(str::trim)
-        .collect();
-    let mut table = Table::new();
-    for line in lines {
-        let cells: Vec<&str> = line.split('\t').map(str::trim).collect();
-        let Some(scene) = cells.first() else { continue };
-        let row = table.entry(scene.to_string()).or_default();
-        for (name, cell) in header.iter().zip(cells.iter()).skip(1) {
-            if let Ok(v) = cell.parse::<f64>() {
-                row.insert(name.to_string(), v);
-            }
-        }
-    }
-    Ok(table)
-}
-
+/// The scenes of a thesis table in row order (its first column), read with polars.
 fn tsv_scene_order(path: &Path) -> Result<Vec<String>, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok(text
-        .lines()
-        .skip(1)
-        .filter_map(|l| l.split('\t').next())
-        .map(|s| s.trim().to_string())
-        .filter(|s| !s.is_empty())
-        .collect())
+    let table = frame::read_tsv(path)?;
+    let first = table.columns().first().ok_or_else(|| format!("{}: empty table", path.display()))?;
+    let scenes = first.str().map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(scenes.iter().flatten().map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect())
 }
 
 /// Markdown rows `| name | 871 414 | kind |` whose second cell is a (space-grouped) integer.
@@ -386,28 +351,18 @@ pub fn row_matches(r: &ResultRow, m: &MethodMap) -> Option<usize> {
     if m.compact.is_some_and(|c| c != r.compact) {
         return None;
     }
-    let encode_extra = match (m.encoder, r.encoder.as_deref()) {
-        (None, None) => 0,
+    // An optional stage (encode, optimize): absent on both sides, or the same method with matching
+    // parameters (the count beyond the mapping).
+    let stage = |want: Option<&str>, have: Option<&str>, have_params: Option<&str>, wanted: &str| match (want, have) {
+        (None, None) => Some(0),
         (Some(want), Some(have)) if want == have => {
-            let ep = r.encode_params.as_deref().unwrap_or("");
-            if !params_match(ep, m.encode_params) {
-                return None;
-            }
-            extra_params(ep, m.encode_params)
+            let p = have_params.unwrap_or("");
+            params_match(p, wanted).then(|| extra_params(p, wanted))
         }
-        _ => return None,
+        _ => None,
     };
-    let optimize_extra = match (m.optimizer, r.optimizer.as_deref()) {
-        (None, None) => 0,
-        (Some(want), Some(have)) if want == have => {
-            let op = r.optimize_params.as_deref().unwrap_or("");
-            if !params_match(op, m.optimize_params) {
-                return None;
-            }
-            extra_params(op, m.optimize_params)
-        }
-        _ => return None,
-    };
+    let encode_extra = stage(m.encoder, r.encoder.as_deref(), r.encode_params.as_deref(), m.encode_params)?;
+    let optimize_extra = stage(m.optimizer, r.optimizer.as_deref(), r.optimize_params.as_deref(), m.optimize_params)?;
     Some(extra_params(&r.build_params, m.params) + encode_extra + optimize_extra)
 }
 
@@ -452,10 +407,8 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
             if same_model(r, &scenes).is_none() || !consts_ok(r) {
                 continue;
             }
-            if let Some(kind) = rays {
-                if !r.rays_kind.as_deref().is_some_and(|k| k.starts_with(kind)) {
-                    continue;
-                }
+            if !on_rays(r, rays) {
+                continue;
             }
             for m in methods {
                 let Some(extra) = row_matches(r, m) else { continue };
@@ -475,8 +428,10 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
         order.into_iter().map(|k| (k.clone(), best[&k].1)).collect()
     };
 
+    // Every comparison is a left join of our cells (the thesis scene and table column of a
+    // selected row) on a paper table read with polars (`frame::read_paper_table`, `frame::lookup`);
+    // the differences are computed at the end, on one polars frame (`frame::differences`).
     let push = |rep: &mut ReferenceReport, metric: &str, r: &ResultRow, ts: &ThesisScene, abbrev: &str, method: String, ours: f64, paper: f64| {
-        let diff_percent = if paper != 0.0 { (ours - paper) / paper * 100.0 } else { f64::NAN };
         rep.comparisons.push(Comparison {
             source: THESIS.to_string(),
             metric: metric.to_string(),
@@ -486,45 +441,48 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
             method,
             ours,
             paper,
-            diff_percent,
+            diff_percent: f64::NAN,
         });
+    };
+    // The selected rows of thesis scenes, with the table column each reads.
+    let cells = |rays: Option<&str>, methods: &'static [MethodMap], column: &dyn Fn(&str) -> String| {
+        select(rays, methods)
+            .into_iter()
+            .filter_map(|((scene, abbrev), ri)| {
+                let ts = same_model(&rows[ri], &scenes)?;
+                Some((scene, abbrev, ri, ts, (ts.short.clone(), column(abbrev))))
+            })
+            .collect::<Vec<_>>()
+    };
+    let keys = |cells: &[(String, &str, usize, &ThesisScene, (String, String))]| -> Vec<(String, String)> {
+        cells.iter().map(|c| c.4.clone()).collect()
     };
 
     for metric in METRICS {
-        let path = dir.join(metric.file);
+        let path = dir.join(metric.id);
         if !path.exists() {
-            rep.notes.push(format!("{} not found: {} not compared.", metric.file, metric.label));
+            rep.notes.push(format!("{} not found: {} not compared.", metric.id, metric.label));
             continue;
         }
-        let table = read_tsv(&path)?;
-        for ((_, abbrev), ri) in select(metric.rays, METHODS) {
+        let table = frame::read_paper_table(&path)?;
+        let cells = cells(metric.rays, METHODS, &|abbrev| abbrev.to_string());
+        let papers = frame::lookup(&table, &keys(&cells)).map_err(polars_error)?;
+        for ((_, abbrev, ri, ts, _), paper) in cells.into_iter().zip(papers) {
             let r = &rows[ri];
-            let Some(ts) = same_model(r, &scenes) else { continue };
-            let Some(paper) = table.get(&ts.short).and_then(|row| row.get(abbrev)).copied() else {
-                continue;
-            };
+            let Some(paper) = paper else { continue };
             let Some(ours) = (metric.value)(r).filter(|v| v.is_finite()) else { continue };
             push(&mut rep, metric.label, r, ts, abbrev, r.method.clone(), ours, paper);
         }
     }
 
     // Table 25: EMC-64-var relative to the Morton row of the same builder and parameters.
-    let path = dir.join(EMC_TABLE);
-    let table = if path.exists() {
-        read_tsv(&path)?
-    } else {
-        rep.notes.push(format!("{EMC_TABLE} not found: EMC-64-var ratios not compared."));
-        Table::new()
-    };
-    for ((scene, abbrev), mi) in select(None, METHODS) {
-        if table.is_empty() {
-            break;
-        }
+    let emc_table = optional_table(dir, EMC_TABLE, "EMC-64-var ratios", &mut rep)?;
+    let mut emc_cells = Vec::new();
+    for (scene, abbrev, mi, ts, _) in cells(None, METHODS, &|_| String::new()) {
         if !EMC_METHODS.contains(&abbrev) {
             continue;
         }
         let m = &rows[mi];
-        let Some(ts) = same_model(m, &scenes) else { continue };
         let emc = rows
             .iter()
             .filter(|r| {
@@ -540,7 +498,6 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
             .min_by_key(|r| extra_params(r.encode_params.as_deref().unwrap_or(""), EMC_PARAMS));
         let Some(e) = emc else { continue };
         let method = format!("{} / {}", e.method, m.method);
-        let paper_row = table.get(&ts.short);
         let ratio = |a: f64, b: f64| if b > 0.0 && a.is_finite() && b.is_finite() { Some(100.0 * a / b) } else { None };
         let cost = ratio(e.sah_cost, m.sah_cost);
         // A time ratio only between rows timed on one CPU model (issue 12).
@@ -550,10 +507,16 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
             None
         };
         for (label, col, ours) in [(EMC_COST_LABEL, "cost", cost), (EMC_BUILD_LABEL, "build", build)] {
-            let paper = paper_row.and_then(|p| p.get(&format!("{col}_{abbrev}"))).copied();
-            if let (Some(ours), Some(paper)) = (ours, paper) {
-                push(&mut rep, label, m, ts, abbrev, method.clone(), ours, paper);
+            if let Some(ours) = ours {
+                emc_cells.push((label, m, ts, abbrev, method.clone(), ours, (ts.short.clone(), format!("{col}_{abbrev}"))));
             }
+        }
+    }
+    let emc_keys: Vec<(String, String)> = emc_cells.iter().map(|c| c.6.clone()).collect();
+    let papers = frame::lookup(&emc_table, &emc_keys).map_err(polars_error)?;
+    for ((label, m, ts, abbrev, method, ours, _), paper) in emc_cells.into_iter().zip(papers) {
+        if let Some(paper) = paper {
+            push(&mut rep, label, m, ts, abbrev, method, ours, paper);
         }
     }
 
@@ -561,16 +524,17 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
     let t38 = optional_table(dir, IBO_COST_TABLE, "IBO costs (table 38)", &mut rep)?;
     let t20 = optional_table(dir, IBO_RELATIVE_TABLE, "IBO relative costs (table 20)", &mut rep)?;
     let before = select(None, METHODS);
-    for ((scene, abbrev), ri) in select(None, IBO_METHODS) {
+    let ibo = cells(None, IBO_METHODS, &|abbrev| format!("cost_{abbrev}"));
+    let p38 = frame::lookup(&t38, &keys(&ibo)).map_err(polars_error)?;
+    let p20 = frame::lookup(&t20, &keys(&ibo)).map_err(polars_error)?;
+    for (((scene, abbrev, ri, ts, _), p38), p20) in ibo.into_iter().zip(p38).zip(p20) {
         let r = &rows[ri];
-        let Some(ts) = same_model(r, &scenes) else { continue };
-        let col = format!("cost_{abbrev}");
-        if let Some(paper) = t38.get(&ts.short).and_then(|p| p.get(&col)).copied() {
+        if let Some(paper) = p38 {
             if r.sah_cost.is_finite() {
                 push(&mut rep, IBO_COST_LABEL, r, ts, abbrev, r.method.clone(), r.sah_cost, paper);
             }
         }
-        let Some(paper) = t20.get(&ts.short).and_then(|p| p.get(&col)).copied() else { continue };
+        let Some(paper) = p20 else { continue };
         let Some(&(_, bi)) = before.iter().find(|((s, a), _)| *s == scene && *a == abbrev) else {
             rep.notes.push(format!(
                 "{}: table 20 {abbrev} needs the non-optimized {abbrev} chain of table 10 to divide by; not in this experiment.",
@@ -586,50 +550,30 @@ pub fn compare(dir: &Path, rows: &[ResultRow]) -> Result<ReferenceReport, String
     }
 
     bittner_compare(dir, rows, &mut rep)?;
+    let (ours, paper): (Vec<f64>, Vec<f64>) = rep.comparisons.iter().map(|c| (c.ours, c.paper)).unzip();
+    let diffs = frame::differences(&ours, &paper).map_err(polars_error)?;
+    for (c, d) in rep.comparisons.iter_mut().zip(diffs) {
+        c.diff_percent = d;
+    }
     Ok(rep)
 }
 
 pub const THESIS: &str = "Frantal 2019";
 pub const BITTNER: &str = "Bittner 2013";
 
-/// A table that may be missing (a note instead of an error).
-fn optional_table(dir: &Path, file: &str, what: &str, rep: &mut ReferenceReport) -> Result<Table, String> {
-    let path = dir.join(file);
-    if path.exists() {
-        read_tsv(&path)
-    } else {
-        rep.notes.push(format!("{file} not found: {what} not compared."));
-        Ok(Table::new())
-    }
+fn polars_error(e: polars::prelude::PolarsError) -> String {
+    format!("reference tables: {e}")
 }
 
-/// A Bittner 2013 table row: scene, triangles in thousands, method, then cost, ocost, update_s,
-/// build_s.
-/// (scene, triangles in thousands, method, [cost, ocost, update_s, build_s]).
-type BittnerRow = (String, u64, String, [f64; 4]);
-
-fn read_bittner(path: &Path) -> Result<Vec<BittnerRow>, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
-    let header: Vec<&str> = lines.next().unwrap_or("").split('\t').map(str::trim).collect();
-    let col = |name: &str| header.iter().position(|h| *h == name);
-    let (Some(cs), Some(ck), Some(cm)) = (col("Scene"), col("triangles_k"), col("method")) else {
-        return Err(format!("{}: expected columns Scene, triangles_k, method", path.display()));
-    };
-    let vals = ["cost", "ocost", "update_s", "build_s"].map(col);
-    let mut out = Vec::new();
-    for line in lines {
-        let cells: Vec<&str> = line.split('\t').map(str::trim).collect();
-        let get = |i: Option<usize>| i.and_then(|i| cells.get(i)).and_then(|c| c.parse::<f64>().ok());
-        let Some(k) = cells.get(ck).and_then(|c| c.parse::<u64>().ok()) else { continue };
-        out.push((
-            cells.get(cs).unwrap_or(&"").to_string(),
-            k,
-            cells.get(cm).unwrap_or(&"").to_string(),
-            vals.map(|i| get(i).unwrap_or(f64::NAN)),
-        ));
+/// A paper table that may be missing (a note instead of an error; an empty table then).
+fn optional_table(dir: &Path, file: &str, what: &str, rep: &mut ReferenceReport) -> Result<DataFrame, String> {
+    let path = dir.join(file);
+    if path.exists() {
+        frame::read_paper_table(&path)
+    } else {
+        rep.notes.push(format!("{file} not found: {what} not compared."));
+        frame::empty_paper_table().map_err(polars_error)
     }
-    Ok(out)
 }
 
 /// Bittner 2013 "cost" of a row: the tree before compaction (after the optimizer, or as built).
@@ -645,7 +589,8 @@ pub fn bittner_cost(r: &ResultRow) -> Option<f64> {
 
 /// Bittner 2013 table 2: rows of scenes with the paper's triangle count (in thousands, rounded),
 /// matched by `BITTNER_METHODS`; cost and ocost also as comparisons, times only in the table (other
-/// machine).
+/// machine). Polars: the table (read with the csv reader) inner-joined with our best row per scene
+/// and method on (triangles_k, method), in table order, then our scenes' order.
 fn bittner_compare(dir: &Path, rows: &[ResultRow], rep: &mut ReferenceReport) -> Result<(), String> {
     let path = dir.join(BITTNER_TABLE);
     if !path.exists() {
@@ -654,59 +599,69 @@ fn bittner_compare(dir: &Path, rows: &[ResultRow], rep: &mut ReferenceReport) ->
         }
         return Ok(());
     }
-    let table = read_bittner(&path)?;
+    let table = frame::read_tsv(&path)?;
+    // Ours: per scene (in row order) and method, the row matching it with the fewest extra parameters.
     let thousands = |r: &ResultRow| ((r.triangles + r.dropped_triangles) as f64 / 1000.0).round() as u64;
-    for (paper_scene, k, paper_method, paper) in &table {
-        let Some(m) = BITTNER_METHODS.iter().find(|m| m.abbrev == paper_method) else { continue };
-        let mut scenes: Vec<&str> = Vec::new();
-        for r in rows.iter().filter(|r| !r.scene.starts_with("gen:") && thousands(r) == *k && r.c_t == 3.0 && r.c_i == 2.0) {
-            if !scenes.contains(&r.scene.as_str()) {
-                scenes.push(&r.scene);
-            }
+    let paper_consts = |r: &&ResultRow| r.c_t == 3.0 && r.c_i == 2.0;
+    let mut scenes: Vec<&ResultRow> = Vec::new();
+    for r in rows.iter().filter(|r| !r.scene.starts_with("gen:")).filter(paper_consts) {
+        if !scenes.iter().any(|s| s.scene == r.scene) {
+            scenes.push(r);
         }
-        for scene in scenes {
+    }
+    let mut ours: Vec<(u64, &'static str, &ResultRow)> = Vec::new();
+    for s in &scenes {
+        for m in BITTNER_METHODS {
             let best = rows
                 .iter()
-                .filter(|r| r.scene == scene && r.c_t == 3.0 && r.c_i == 2.0)
+                .filter(|r| r.scene == s.scene)
+                .filter(paper_consts)
                 .filter_map(|r| row_matches(r, m).map(|e| (e, r)))
                 .min_by_key(|(e, _)| *e);
-            let Some((_, r)) = best else { continue };
-            let ours = [
-                bittner_cost(r).unwrap_or(f64::NAN),
-                r.sah_cost,
-                // Times of a row whose stages ran on different CPU models are not comparable.
-                if r.build_machine.contains(" + ") { f64::NAN } else { r.optimize_seconds.unwrap_or(0.0) },
-                if r.build_machine.contains(" + ") {
-                    f64::NAN
-                } else {
-                    crate::analysis::total_build_seconds(r) - r.compact_seconds
-                },
-            ];
-            for (label, o, p) in [(BITTNER_COST_LABEL, ours[0], paper[0]), (BITTNER_OCOST_LABEL, ours[1], paper[1])] {
-                if o.is_finite() && p.is_finite() {
-                    rep.comparisons.push(Comparison {
-                        source: BITTNER.to_string(),
-                        metric: label.to_string(),
-                        scene_name: r.scene_name.clone(),
-                        thesis_scene: paper_scene.clone(),
-                        abbrev: paper_method.clone(),
-                        method: r.method.clone(),
-                        ours: o,
-                        paper: p,
-                        diff_percent: if p != 0.0 { (o - p) / p * 100.0 } else { f64::NAN },
-                    });
-                }
+            if let Some((_, r)) = best {
+                ours.push((thousands(s), m.abbrev, r));
             }
-            rep.bittner.push(BittnerComparison {
-                scene_name: r.scene_name.clone(),
-                paper_scene: paper_scene.clone(),
-                paper_method: paper_method.clone(),
-                method: r.method.clone(),
-                ours,
-                paper: *paper,
-                machine: r.build_machine.clone(),
-            });
         }
+    }
+    let keys: Vec<(u64, &str)> = ours.iter().map(|o| (o.0, o.1)).collect();
+    let joined = frame::join_bittner(&table, &keys).map_err(|e| format!("{}: {e}", path.display()))?;
+    for (paper_scene, paper_method, paper, j) in joined {
+        let r = ours[j].2;
+        let ours = [
+            bittner_cost(r).unwrap_or(f64::NAN),
+            r.sah_cost,
+            // Times of a row whose stages ran on different CPU models are not comparable.
+            if r.build_machine.contains(" + ") { f64::NAN } else { r.optimize_seconds.unwrap_or(0.0) },
+            if r.build_machine.contains(" + ") {
+                f64::NAN
+            } else {
+                crate::analysis::total_build_seconds(r) - r.compact_seconds
+            },
+        ];
+        for (label, o, p) in [(BITTNER_COST_LABEL, ours[0], paper[0]), (BITTNER_OCOST_LABEL, ours[1], paper[1])] {
+            if o.is_finite() && p.is_finite() {
+                rep.comparisons.push(Comparison {
+                    source: BITTNER.to_string(),
+                    metric: label.to_string(),
+                    scene_name: r.scene_name.clone(),
+                    thesis_scene: paper_scene.clone(),
+                    abbrev: paper_method.clone(),
+                    method: r.method.clone(),
+                    ours: o,
+                    paper: p,
+                    diff_percent: f64::NAN,
+                });
+            }
+        }
+        rep.bittner.push(BittnerComparison {
+            scene_name: r.scene_name.clone(),
+            paper_scene,
+            paper_method,
+            method: r.method.clone(),
+            ours,
+            paper,
+            machine: r.build_machine.clone(),
+        });
     }
     Ok(())
 }

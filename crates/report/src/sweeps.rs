@@ -28,16 +28,13 @@ pub fn figure(sweep: &Sweep, metric_label: &str, series: &[Series], drops: &[Dro
     }
     let refs: Vec<&Series> = series.iter().filter(|s| s.encoder.is_none()).collect();
     let invalid = |s: &Series, l: String| if s.valid { l } else { format!("{l} (INVALID)") };
-    let reference_curves = || {
-        refs.iter()
+    // One curve per series, labelled with its method and coloured by its position.
+    let labelled = |series: &[&Series], reference: bool| -> Vec<Curve> {
+        series
+            .iter()
             .enumerate()
-            .map(|(i, s)| Curve {
-                label: invalid(s, s.label.clone()),
-                color_index: i,
-                reference: true,
-                points: s.points.clone(),
-            })
-            .collect::<Vec<_>>()
+            .map(|(i, s)| Curve { label: invalid(s, s.label.clone()), color_index: i, reference, points: s.points.clone() })
+            .collect()
     };
     let color_of = |s: &Series| {
         encoders
@@ -57,7 +54,7 @@ pub fn figure(sweep: &Sweep, metric_label: &str, series: &[Series], drops: &[Dro
                 points: s.points.clone(),
             })
             .collect();
-        curves.extend(reference_curves());
+        curves.extend(labelled(&refs, true));
         let mut markers = Vec::new();
         for d in drops.iter().filter(|d| d.builder == *b) {
             let Some(s) = series.iter().find(|s| s.label == d.method) else {
@@ -87,16 +84,7 @@ pub fn figure(sweep: &Sweep, metric_label: &str, series: &[Series], drops: &[Dro
         });
     }
     if builders.is_empty() {
-        let curves = series
-            .iter()
-            .enumerate()
-            .map(|(i, s)| Curve {
-                label: invalid(s, s.label.clone()),
-                color_index: i,
-                reference: false,
-                points: s.points.clone(),
-            })
-            .collect();
+        let curves = labelled(&series.iter().collect::<Vec<_>>(), false);
         panels.push(SweepPanel {
             title: "all methods".into(),
             curves,

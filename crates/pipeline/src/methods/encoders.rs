@@ -65,31 +65,15 @@ mod tests {
             .unwrap()
             .parts();
         assert_eq!(e.as_ref().unwrap().params["bits"], "auto:aac");
-        let (_, e) = r
-            .resolve_chain(
-                "lbvh",
-                Some("morton"),
-                None,
-                &raw(&[("bits", "10"), ("grid_bits", "9")]),
-                c,
-            )
-            .unwrap()
-            .parts();
-        let e = e.unwrap();
+        // The encoder an lbvh chain resolves with these parameters.
+        let lbvh = |encoder: &str, kv: &[(&str, &str)]| {
+            r.resolve_chain("lbvh", Some(encoder), None, &raw(kv), c).unwrap().parts().1.unwrap()
+        };
+        let e = lbvh("morton", &[("bits", "10"), ("grid_bits", "9")]);
         assert_eq!((e.config.bits, e.config.grid_bits), (Bits::Fixed(10), 9));
         assert_eq!(r.encoder_label(&e), "morton bits=10 grid_bits=9");
         assert_eq!(e.cell_frame, CellFrame::Lattice);
-        let (_, t) = r
-            .resolve_chain(
-                "lbvh",
-                Some("emc64-var"),
-                None,
-                &raw(&[("grid_bits", "9"), ("grid_frame", "tight")]),
-                c,
-            )
-            .unwrap()
-            .parts();
-        let t = t.unwrap();
+        let t = lbvh("emc64-var", &[("grid_bits", "9"), ("grid_frame", "tight")]);
         assert_eq!(
             (t.cell_frame, r.encoder_label(&t).as_str()),
             (CellFrame::Tight, "emc64-var grid_bits=9 grid_frame=tight")

@@ -61,13 +61,8 @@ mod tests {
         assert_eq!(thesis.params["ibo_nodes"], "all");
         assert!(thesis.ibo_config().frac_of_all);
         assert!(!bittner.ibo_config().frac_of_all);
-        let inner = r
-            .resolve_optimizer(
-                "ibo",
-                &raw(&[("schedule", "thesis"), ("ibo_nodes", "inner")]),
-                cost,
-            )
-            .unwrap();
+        let ibo = |kv: &[(&str, &str)]| r.resolve_optimizer("ibo", &raw(kv), cost).unwrap();
+        let inner = ibo(&[("schedule", "thesis"), ("ibo_nodes", "inner")]);
         assert!(!inner.ibo_config().frac_of_all);
         let cfg = thesis.ibo_config();
         assert_eq!(
@@ -75,13 +70,7 @@ mod tests {
             (bvhlab_opt::ibo::Schedule::Thesis, false)
         );
         assert_eq!(r.optimizer_label(&thesis), "ibo comb schedule=thesis");
-        let best = r
-            .resolve_optimizer(
-                "ibo",
-                &raw(&[("schedule", "thesis"), ("keep_best", "true")]),
-                cost,
-            )
-            .unwrap();
+        let best = ibo(&[("schedule", "thesis"), ("keep_best", "true")]);
         assert!(best.ibo_config().keep_best);
         assert_eq!(
             r.optimizer_label(&best),

@@ -8,7 +8,7 @@ use super::build::{Build, BUILD_VERSION, BVH_STAGES};
 use super::compact::{check_compact, Compact, COMPACT_VERSION};
 use super::encode::{Encode, ENCODE_VERSION};
 use super::focus::{Focus, FOCUS_VERSION};
-use super::layout::{LayoutRequest, LayoutStage, AUTO_BUDGET, LAYOUT_VERSION, LAYOUT_VERSIONS};
+use super::layout::{LayoutRequest, LayoutStage, AUTO_BUDGET, LAYOUT_VERSION};
 use super::load::{precision_warning, Load, LOAD_VERSION};
 use super::measure::{paired_ratios, Measure, MEASURE_VERSION};
 use super::optimize::{optimize_info, Optimize, OPTIMIZE_VERSION};
@@ -34,8 +34,6 @@ pub struct Versions {
     pub measure: u32,
     pub focus: u32,
     pub layout: u32,
-    /// Per-layout versions (`LAYOUT_VERSIONS`, the layout stage's `method_version`).
-    pub layouts: &'static [(&'static str, u32)],
 }
 
 impl Default for Versions {
@@ -49,7 +47,6 @@ impl Default for Versions {
             measure: MEASURE_VERSION,
             focus: FOCUS_VERSION,
             layout: LAYOUT_VERSION,
-            layouts: &LAYOUT_VERSIONS,
         }
     }
 }

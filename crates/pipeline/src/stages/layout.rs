@@ -16,29 +16,10 @@ use std::time::Instant;
 
 /// 3: layout names `qbvh` -> `qbvh_chunks`, `octree1` -> `octree_1bit` (issue 17); an `auto`
 ///    artifact records the chosen candidate by name. Layout contents are unchanged.
-/// A change of one layout bumps that layout's own version (`LAYOUT_VERSIONS`).
+/// A change of one layout bumps that layout's own version (`.with_version(2)` on its `METHOD` in
+/// `bvhlab_layout`): its layout nodes get new keys, and so do the `auto` nodes (which may choose
+/// it), nothing else.
 pub const LAYOUT_VERSION: u32 = 3;
-
-/// Per-layout implementation versions (every layout of `bvhlab_layout::LAYOUTS`): bump one when
-/// its build or traversal changes what it produces; its layout nodes get new keys, and so do the
-/// `auto` nodes (which may choose it), nothing else. The runner reads them from `Versions::layouts`
-/// (injectable, like the stage versions).
-pub const LAYOUT_VERSIONS: [(&str, u32); 6] = [
-    ("bvh2", 1),
-    ("qbvh_chunks", 1),
-    ("octree", 1),
-    ("octree_1bit", 1),
-    ("bvh4", 1),
-    ("bvh8", 1),
-];
-
-/// The version of layout `name` in `versions` (`LAYOUT_VERSIONS`; 1 for a name not listed).
-pub fn layout_version(versions: &[(&str, u32)], name: &str) -> u32 {
-    versions
-        .iter()
-        .find(|(n, _)| *n == name)
-        .map_or(1, |(_, v)| *v)
-}
 
 /// A layout request: a layout with its parameters, or the `auto` search (Kilian 2021 layouts; the
 /// chosen one then behaves as if it had been given).
@@ -191,7 +172,7 @@ impl Stage for LayoutStage {
             LayoutRequest::Fixed(l) => {
                 let mut p = l.params.clone();
                 p.insert("layout".into(), l.name.clone());
-                method_version(&mut p, layout_version(rt.versions.layouts, &l.name));
+                method_version(&mut p, rt.registry.layout(&l.name)?.version);
                 // Octrees are built from the triangles alone: keyed by the scene, so every
                 // builder's chain shares one octree node.
                 let inputs = if bvhlab_layout::uses_bvh(&l.name) {
@@ -215,13 +196,13 @@ impl Stage for LayoutStage {
                 .into();
                 // Versions of the candidate layouts past their first (none: the key as before).
                 let bumped: Vec<String> = rt
-                    .versions
+                    .registry
                     .layouts
                     .iter()
-                    .filter(|(n, v)| {
-                        *v != 1 && candidates.iter().any(|c| c.split(':').next() == Some(*n))
+                    .filter(|l| {
+                        l.version != 1 && candidates.iter().any(|c| c.split(':').next() == Some(l.name))
                     })
-                    .map(|(n, v)| format!("{n}={v}"))
+                    .map(|l| format!("{}={}", l.name, l.version))
                     .collect();
                 if !bumped.is_empty() {
                     p.insert("method_versions".into(), bumped.join(","));
@@ -392,16 +373,5 @@ mod tests {
                 "{c}"
             );
         }
-    }
-
-    #[test]
-    fn every_layout_has_a_version() {
-        for name in bvhlab_layout::LAYOUTS {
-            assert!(
-                LAYOUT_VERSIONS.iter().any(|(n, v)| *n == name && *v >= 1),
-                "{name}"
-            );
-        }
-        assert_eq!(LAYOUT_VERSIONS.len(), bvhlab_layout::LAYOUTS.len());
     }
 }

@@ -10,7 +10,7 @@
 //!
 //! Bump a stage's version when its implementation changes what it produces: its artifacts and
 //! everything downstream get new keys. A change of one method (builder, encoder, optimizer,
-//! layout) bumps that method's own version instead (`registry.rs`, `layout::LAYOUT_VERSIONS`).
+//! layout) bumps that method's own version instead (`.with_version(2)` on its `METHOD`; the stages read it from `Runner::registry`).
 use crate::error::Result;
 use bvhlab_bvh::{Aabb, Bvh, CostParams, Metrics};
 use bvhlab_geom::{LoadError, Scene, Triangle};
@@ -37,9 +37,9 @@ pub use compact::{check_compact, COMPACT_METHODS, COMPACT_VERSION};
 pub use encode::{EncodeArtifact, EncodeSummary, ENCODE_VERSION};
 pub use focus::{focus_box, focus_canonical, parse_focus, FocusSummary, FOCUS_VERSION};
 pub use layout::{
-    auto_candidates, layout_version, parse_layout, AutoCandidate, AutoChoice, AutoSpec,
+    auto_candidates, parse_layout, AutoCandidate, AutoChoice, AutoSpec,
     LayoutArtifact, LayoutRequest, LayoutSummary, AUTO_BUDGET, AUTO_MAX_SLOWDOWN, AUTO_RAYS,
-    AUTO_RUNS, AUTO_SEED, LAYOUT_VERSION, LAYOUT_VERSIONS,
+    AUTO_RUNS, AUTO_SEED, LAYOUT_VERSION,
 };
 pub use load::{precision_warning, SceneSummary, LOAD_VERSION, PRECISION_LOSS_WARN};
 pub use measure::{

@@ -90,32 +90,15 @@ pub(crate) fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<
         }
         let has = |m: Metric| c.points.iter().any(|p| m.of(p.row).is_some());
         let stem = c.label.replace(" · ", "_");
-        let mut speed_ys = Vec::new();
-        if has(Metric::TraceSeconds) {
-            speed_ys.push(Metric::TraceSeconds);
-        }
-        if has(Metric::Slowdown) {
-            speed_ys.push(Metric::Slowdown);
-        }
-        if !speed_ys.is_empty() {
-            let fig = figure(c, &format!("{}: memory vs speed", c.label), &speed_ys);
-            plots.extend(plot(&fig, &format!("layouts_speed_{stem}"), &format!("{}: bytes vs trace time", c.label), problems));
-        }
-        let mut acc_ys = Vec::new();
-        if has(Metric::ExtraTestsPerRay) {
-            acc_ys.push(Metric::ExtraTestsPerRay);
-        }
-        if has(Metric::ExtraBoxHitsPerRay) {
-            acc_ys.push(Metric::ExtraBoxHitsPerRay);
-        }
-        if !acc_ys.is_empty() {
-            let fig = figure(c, &format!("{}: memory vs accuracy", c.label), &acc_ys);
-            plots.extend(plot(
-                &fig,
-                &format!("layouts_accuracy_{stem}"),
-                &format!("{}: bytes vs extra tests", c.label),
-                problems,
-            ));
+        for (what, ys, title) in [
+            ("speed", [Metric::TraceSeconds, Metric::Slowdown], "bytes vs trace time"),
+            ("accuracy", [Metric::ExtraTestsPerRay, Metric::ExtraBoxHitsPerRay], "bytes vs extra tests"),
+        ] {
+            let ys: Vec<Metric> = ys.into_iter().filter(|m| has(*m)).collect();
+            if !ys.is_empty() {
+                let fig = figure(c, &format!("{}: memory vs {what}", c.label), &ys);
+                plots.extend(plot(&fig, &format!("layouts_{what}_{stem}"), &format!("{}: {title}", c.label), problems));
+            }
         }
     }
     let extra = crate::sections::layouts::tables(&findings(rows), &cs);

@@ -5,7 +5,7 @@ use crate::plots::labels;
 use crate::plots::pareto::pareto_front;
 use crate::plots::{color, err, Figure};
 use bvhlab_pipeline::stats::min_max;
-use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
+use crate::plots::Axis;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -159,27 +159,11 @@ fn panel_with<DB, X, Y>(
 ) -> Result<(), String>
 where
     DB: DrawingBackend,
-    X: AsRangedCoord<Value = f64>,
-    X::CoordDescType: ValueFormatter<f64>,
-    Y: AsRangedCoord<Value = f64>,
-    Y::CoordDescType: ValueFormatter<f64>,
+    X: Axis,
+    Y: Axis,
 {
-    let mut chart = ChartBuilder::on(area)
-        .caption(&panel.title, ("sans-serif", 17))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(70)
-        .build_cartesian_2d(xr, yr)
-        .map_err(err)?;
-    let (xf, yf) = (labels::axis_format(lims.0 .0, lims.0 .1), labels::axis_format(lims.1 .0, lims.1 .1));
-    chart
-        .configure_mesh()
-        .x_desc(xdesc)
-        .y_desc(ydesc)
-        .x_label_formatter(&xf)
-        .y_label_formatter(&yf)
-        .draw()
-        .map_err(err)?;
+    let mut chart = crate::plots::panel_chart(area, &panel.title, xr, yr)?;
+    crate::plots::draw_axes(&mut chart, (xdesc, ydesc), lims.0, lims.1)?;
     // Front over distinct finite points of every series.
     let mut pts: Vec<(f64, f64, String)> = Vec::new();
     for p in panel.series.iter().flat_map(|s| s.points.iter()) {

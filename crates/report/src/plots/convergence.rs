@@ -2,7 +2,7 @@
 //! against seconds (left) and against the pass (right), one curve per optimizer / measure, with a
 //! ring at the pass that reaches 90% of the curve's final reduction.
 use super::{color, err, Figure};
-use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
+use super::Axis;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -105,13 +105,7 @@ impl Figure for ConvergenceFigure {
             .titled(&self.caption, ("sans-serif", 22))
             .map_err(err)?;
         let Some((ylo, yhi, ylog, clipped)) = self.y_range() else {
-            root.draw(&Text::new(
-                "no finite trace points",
-                (20, 20),
-                ("sans-serif", 18).into_font(),
-            ))
-            .map_err(err)?;
-            return Ok(());
+            return super::draw_nothing(&root, "no finite trace points".into());
         };
         let (_, h) = root.dim_in_pixel();
         let legend_h = (self.legend_rows() * LEGEND_ROW + 10) as u32;
@@ -209,10 +203,8 @@ impl ConvergenceFigure {
     ) -> Result<(), String>
     where
         DB: DrawingBackend,
-        X: AsRangedCoord<Value = f64>,
-        X::CoordDescType: ValueFormatter<f64>,
-        Y: AsRangedCoord<Value = f64>,
-        Y::CoordDescType: ValueFormatter<f64>,
+        X: Axis,
+        Y: Axis,
     {
         let mut chart = ChartBuilder::on(area)
             .margin(12)
@@ -220,15 +212,8 @@ impl ConvergenceFigure {
             .y_label_area_size(64)
             .build_cartesian_2d(xr, yr)
             .map_err(err)?;
-        let (xf, yf) = (super::labels::axis_format(chart.x_range().start, chart.x_range().end), super::labels::axis_format(chart.y_range().start, chart.y_range().end));
-        chart
-            .configure_mesh()
-            .x_desc(xdesc)
-            .y_desc(ydesc)
-            .x_label_formatter(&xf)
-            .y_label_formatter(&yf)
-            .draw()
-            .map_err(err)?;
+        let (x, y) = (chart.x_range(), chart.y_range());
+        super::draw_axes(&mut chart, (xdesc, ydesc), (x.start, x.end), (y.start, y.end))?;
         for c in &self.curves {
             let col = color(c.color_index);
             let pts: Vec<(f64, f64)> = c

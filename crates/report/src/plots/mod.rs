@@ -8,6 +8,7 @@ pub mod reference;
 pub mod sweep;
 
 use bvhlab_pipeline::atomic::write_atomic_with;
+use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -73,6 +74,55 @@ pub fn render<F: Figure>(fig: &F, out_dir: &Path, stem: &str, title: &str) -> Re
         Ok(Err(e)) => Err(format!("plot '{title}': {e}")),
         Err(_) => Err(format!("plot '{title}': plotters panicked (fonts missing?)")),
     }
+}
+
+/// An f64 axis whose ticks can be labelled (linear or logarithmic): what every chart here draws on.
+pub trait Axis: AsRangedCoord<Value = f64, CoordDescType: ValueFormatter<f64>> {}
+impl<T: AsRangedCoord<Value = f64, CoordDescType: ValueFormatter<f64>>> Axis for T {}
+
+/// One panel of a figure of panels: its title above a chart over `x` and `y`.
+pub fn panel_chart<'a, DB: DrawingBackend, X: Axis, Y: Axis>(
+    area: &'a DrawingArea<DB, Shift>,
+    title: &str,
+    x: X,
+    y: Y,
+) -> Result<ChartContext<'a, DB, Cartesian2d<X::CoordDescType, Y::CoordDescType>>, String> {
+    ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 17))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x, y)
+        .map_err(err)
+}
+
+/// A figure with nothing to draw says so in its top-left corner.
+pub fn draw_nothing<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, what: String) -> Result<(), String> {
+    area.draw(&Text::new(what, (20, 20), ("sans-serif", 18).into_font())).map_err(err)
+}
+
+/// The grid and axes of a chart: the axis descriptions and tick labels (`labels::axis_format`
+/// over the value ranges `x` and `y`).
+pub fn draw_axes<DB, X, Y>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<X, Y>>,
+    (xdesc, ydesc): (&str, &str),
+    x: (f64, f64),
+    y: (f64, f64),
+) -> Result<(), String>
+where
+    DB: DrawingBackend,
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    let (xf, yf) = (labels::axis_format(x.0, x.1), labels::axis_format(y.0, y.1));
+    chart
+        .configure_mesh()
+        .x_desc(xdesc)
+        .y_desc(ydesc)
+        .x_label_formatter(&xf)
+        .y_label_formatter(&yf)
+        .draw()
+        .map_err(err)
 }
 
 pub fn err<E: std::fmt::Display>(e: E) -> String {

@@ -2,7 +2,7 @@
 //! Pareto front (DEVELOPERS.md principle 1: chart speed against quality).
 use super::{color, err, labels, Figure};
 use bvhlab_pipeline::stats::min_max;
-use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
+use super::Axis;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -101,12 +101,7 @@ impl ParetoFigure {
         let pts = self.finite();
         let title = format!("{}: build time vs {}", self.scene, self.cost_label);
         if pts.is_empty() {
-            root.draw(&Text::new(
-                format!("{title}: no finite (time, cost) points"),
-                (20, 20),
-                ("sans-serif", 18).into_font(),
-            ))
-            .map_err(err)?;
+            super::draw_nothing(root, format!("{title}: no finite (time, cost) points"))?;
             return Ok(Vec::new());
         }
         let (xmin, xmax) = min_max(pts.iter().flat_map(|p| {
@@ -144,8 +139,7 @@ impl ParetoFigure {
     ) -> Result<Vec<String>, String>
     where
         DB: DrawingBackend,
-        Y: AsRangedCoord<Value = f64>,
-        Y::CoordDescType: ValueFormatter<f64>,
+        Y: Axis,
     {
         if xmin > 0.0 && xmax / xmin > 10.0 {
             let xr = (xmin / 1.5..xmax * 1.5).log_scale();
@@ -176,10 +170,8 @@ impl ParetoFigure {
     ) -> Result<Vec<String>, String>
     where
         DB: DrawingBackend,
-        Y: AsRangedCoord<Value = f64>,
-        Y::CoordDescType: ValueFormatter<f64>,
-        X: AsRangedCoord<Value = f64>,
-        X::CoordDescType: ValueFormatter<f64>,
+        Y: Axis,
+        X: Axis,
     {
         let pts = self.finite();
         let mut chart = ChartBuilder::on(root)
@@ -189,15 +181,7 @@ impl ParetoFigure {
             .y_label_area_size(70)
             .build_cartesian_2d(xr, yr)
             .map_err(err)?;
-        let (xf, yf) = (labels::axis_format(lim.0 .0, lim.0 .1), labels::axis_format(lim.1 .0, lim.1 .1));
-        chart
-            .configure_mesh()
-            .x_desc(xdesc)
-            .y_desc(ydesc)
-            .x_label_formatter(&xf)
-            .y_label_formatter(&yf)
-            .draw()
-            .map_err(err)?;
+        super::draw_axes(&mut chart, (xdesc, ydesc), lim.0, lim.1)?;
 
         let xy: Vec<(f64, f64)> = pts.iter().map(|p| (p.seconds, p.sah_cost)).collect();
         let front = pareto_front(&xy);

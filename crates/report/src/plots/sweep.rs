@@ -3,7 +3,7 @@
 //! show measured drops (solid) and predicted drops (dashed, Riemersma eq. 14).
 use super::{color, err, Figure};
 use bvhlab_pipeline::stats::min_max;
-use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
+use super::Axis;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -117,13 +117,7 @@ impl Figure for SweepFigure {
             .titled(&self.caption, ("sans-serif", 22))
             .map_err(err)?;
         let Some((ylo, yhi, log)) = self.y_range() else {
-            root.draw(&Text::new(
-                "no finite values",
-                (20, 20),
-                ("sans-serif", 18).into_font(),
-            ))
-            .map_err(err)?;
-            return Ok(());
+            return super::draw_nothing(&root, "no finite values".into());
         };
         let (xlo, xhi) = self.x_range();
         let rows = self.panels.len().max(1).div_ceil(self.cols());
@@ -235,29 +229,15 @@ fn draw_panel<DB, Y>(
 ) -> Result<(), String>
 where
     DB: DrawingBackend,
-    Y: AsRangedCoord<Value = f64>,
-    Y::CoordDescType: ValueFormatter<f64>,
+    Y: Axis,
 {
     let (_, h) = area.dim_in_pixel();
     let legend_h = legend_rows(panel) as i32 * LEGEND_ROW + 10;
     let (area, legend_area) = area.split_vertically((h as i32 - legend_h).max(h as i32 / 2));
     let legend_area = &legend_area;
-    let mut chart = ChartBuilder::on(&area)
-        .caption(&panel.title, ("sans-serif", 17))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(70)
-        .build_cartesian_2d(xr, yr)
-        .map_err(err)?;
-    let (xf, yf) = (super::labels::axis_format(chart.x_range().start, chart.x_range().end), super::labels::axis_format(chart.y_range().start, chart.y_range().end));
-    chart
-        .configure_mesh()
-        .x_desc(x_desc)
-        .y_desc(y_desc)
-        .x_label_formatter(&xf)
-        .y_label_formatter(&yf)
-        .draw()
-        .map_err(err)?;
+    let mut chart = super::panel_chart(&area, &panel.title, xr, yr)?;
+    let (x, y) = (chart.x_range(), chart.y_range());
+    super::draw_axes(&mut chart, (x_desc, y_desc), (x.start, x.end), (y.start, y.end))?;
 
     // Markers first, so curves stay on top.
     let mut any = [false, false];
