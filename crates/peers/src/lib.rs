@@ -202,3 +202,23 @@ impl Peer {
         Err(EMBREE_MISSING.into())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Without Embree in the build, its peers say how to get it; obvhs is always there.
+    #[test]
+    fn availability_follows_the_build() {
+        assert!(Peer::Obvhs.available().is_ok());
+        for p in [Peer::EmbreeMorton, Peer::EmbreeBinned, Peer::EmbreeSbvh] {
+            match p.available() {
+                Ok(()) => assert!(EMBREE_AVAILABLE),
+                Err(how) => {
+                    assert!(!EMBREE_AVAILABLE && how.contains("scripts/setup.sh"), "{how}");
+                    assert!(p.build(&[], &[], &Default::default(), 3.0, 2.0).is_err());
+                }
+            }
+        }
+    }
+}
