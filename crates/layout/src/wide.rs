@@ -484,15 +484,22 @@ impl View<'_> {
         if self.nodes == 0 || ray.tmax.is_nan() || ray.tmax <= 0.0 {
             return (Hit::NONE, 0, 0);
         }
-        let rb = RayBox::new(ray);
-        if self.root.is_empty() || rb.hit(&self.root, ray.tmax).is_none() {
+        if self.root.is_empty() {
             return (Hit::NONE, 0, 0);
         }
         let sr = SlabRay::new(ray);
         if sr.parallel {
-            self.walk::<W, T, Parallel, STATS>(ray, &sr, &rb, stack)
+            let rb = RayBox::new(ray);
+            if rb.hit(&self.root, ray.tmax).is_none() {
+                return (Hit::NONE, 0, 0);
+            }
+            self.walk::<W, T, Parallel, STATS>(ray, &sr, Some(&rb), stack)
         } else {
-            self.walk::<W, T, B, STATS>(ray, &sr, &rb, stack)
+            // The same test as `RayBox::hit` for a ray with no zero component, without its divisions.
+            if sr.hit(&self.root, ray.tmax).is_none() {
+                return (Hit::NONE, 0, 0);
+            }
+            self.walk::<W, T, B, STATS>(ray, &sr, None, stack)
         }
     }
 
@@ -504,7 +511,7 @@ impl View<'_> {
         &self,
         ray: &Ray,
         sr: &SlabRay,
-        rb: &RayBox,
+        rb: Option<&RayBox>,
         stack: &mut Stack,
     ) -> (Hit, u32, u32) {
         let mut best = Hit {
@@ -512,7 +519,8 @@ impl View<'_> {
             prim: u32::MAX,
         };
         let (mut steps, mut tests) = (0u32, 0u32);
-        let tr = T::prepare(ray);
+        // Prepared at the first leaf: many rays never reach one.
+        let mut tr: Option<T::Ray> = None;
         stack.clear();
         let mut cur = 0u32;
         let mut budget = self.nodes + self.leaves.len();
@@ -531,10 +539,11 @@ impl View<'_> {
                 let mut dist = [0f32; W];
                 let mask = B::sel(node, &self.data[base + 6 * W..base + 7 * W], sr, rb, best.t, &mut dist);
                 let codes = &self.data[base + 6 * W..base + 7 * W];
-                match mask.count_ones() {
+                // (No count_ones: popcnt is not in the x86-64 baseline nor implied by AVX2.)
+                match mask {
                     0 => {}
-                    1 => {
-                        cur = codes[mask.trailing_zeros() as usize];
+                    m if m & (m - 1) == 0 => {
+                        cur = codes[m.trailing_zeros() as usize];
                         continue;
                     }
                     _ => {
@@ -564,11 +573,12 @@ impl View<'_> {
             } else if let Some(&[first, count]) = self.leaves.get((cur & !LEAF_BIT) as usize) {
                 let first = (first as usize).min(self.tris.len());
                 let end = first.saturating_add(count as usize).min(self.tris.len());
+                let tr = &*tr.get_or_insert_with(|| T::prepare(ray, &sr.inv));
                 for tri in &self.tris[first..end] {
                     if STATS {
                         tests += 1;
                     }
-                    if let Some(t) = T::test(&tr, tri) {
+                    if let Some(t) = T::test(tr, tri) {
                         accept(t, tri.prim, &mut best);
                     }
                 }
@@ -589,12 +599,12 @@ impl View<'_> {
 /// A box test over a node given its rows and codes (the SIMD tests ignore the codes; the parallel
 /// test needs them to skip empty slots).
 trait BoxSel<const W: usize> {
-    fn sel(rows: &[f32], codes: &[u32], sr: &SlabRay, rb: &RayBox, tmax: f32, dist: &mut [f32; W]) -> u32;
+    fn sel(rows: &[f32], codes: &[u32], sr: &SlabRay, rb: Option<&RayBox>, tmax: f32, dist: &mut [f32; W]) -> u32;
 }
 
 impl<const W: usize, B: WideBox<W>> BoxSel<W> for B {
     #[inline(always)]
-    fn sel(rows: &[f32], _: &[u32], sr: &SlabRay, _: &RayBox, tmax: f32, dist: &mut [f32; W]) -> u32 {
+    fn sel(rows: &[f32], _: &[u32], sr: &SlabRay, _: Option<&RayBox>, tmax: f32, dist: &mut [f32; W]) -> u32 {
         debug_assert!(rows.len() >= 6 * W);
         // SAFETY: rows holds at least 6 * W floats (a node's slice); the CPU feature of a SIMD `B`
         // was checked before its instantiation was called (`Simd::resolve`).
@@ -603,7 +613,9 @@ impl<const W: usize, B: WideBox<W>> BoxSel<W> for B {
 }
 
 impl<const W: usize> BoxSel<W> for Parallel {
-    fn sel(rows: &[f32], codes: &[u32], _: &SlabRay, rb: &RayBox, tmax: f32, dist: &mut [f32; W]) -> u32 {
+    fn sel(rows: &[f32], codes: &[u32], _: &SlabRay, rb: Option<&RayBox>, tmax: f32, dist: &mut [f32; W]) -> u32 {
+        // Always given for parallel rays (`one`).
+        let Some(rb) = rb else { return 0 };
         let mut mask = 0;
         for c in 0..W {
             if codes[c] == EMPTY {

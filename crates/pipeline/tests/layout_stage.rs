@@ -235,6 +235,28 @@ fn qbvh_chunks_is_smaller_and_exact() {
     }
 }
 
+/// Issue 19: bvh4 and bvh8 through the runner: valid, same hits as bvh2 (counted with the exact
+/// test), fewer node visits, their own timing (`mrays_per_s` is the layout's), bytes counted.
+#[test]
+fn wide_layouts_through_the_pipeline() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = Runner::new(Store::open(dir.path()).unwrap());
+    let b = run(&mut r, &chain("binned-sah", Some("bvh2"), true));
+    for (name, width) in [("bvh4", 4u64), ("bvh8", 8)] {
+        let w = run(&mut r, &chain("binned-sah", Some(name), true));
+        assert!(w.valid, "{name}");
+        assert_eq!(w.layout.as_deref(), Some(name));
+        assert_eq!(w.hits, b.hits, "{name}: same hits as bvh2");
+        assert!(w.traversal_steps_per_ray.unwrap() < b.traversal_steps_per_ray.unwrap(), "{name}");
+        assert_eq!(w.prim_refs, Some(w.triangles));
+        assert_eq!(w.topology_bytes.unwrap() % 4, 0);
+        assert!(w.topology_bytes.unwrap() >= 28 * width, "{name}: at least one node");
+        assert!(w.mrays_per_s.unwrap() > 0.0 && w.trace_seconds != w.bvh2_trace_seconds, "{name}: timed itself");
+        assert!(w.slowdown.unwrap() > 0.0);
+        assert_eq!(w.extra_box_hits_per_ray, Some(0.0));
+    }
+}
+
 #[test]
 fn octrees_share_one_node_across_builders() {
     let dir = tempfile::tempdir().unwrap();

@@ -61,7 +61,8 @@ impl TriStore {
 /// hit distance (range-checked by [`accept`]).
 pub trait TriTest: Sync {
     type Ray;
-    fn prepare(ray: &Ray) -> Self::Ray;
+    /// `inv`: the inverse direction the box test computed already (saves divisions per ray).
+    fn prepare(ray: &Ray, inv: &[f32; 3]) -> Self::Ray;
     fn test(r: &Self::Ray, tri: &WTri) -> Option<f32>;
 }
 
@@ -71,7 +72,7 @@ pub struct Exact;
 impl TriTest for Exact {
     type Ray = (Vec3, Vec3);
     #[inline(always)]
-    fn prepare(ray: &Ray) -> (Vec3, Vec3) {
+    fn prepare(ray: &Ray, _: &[f32; 3]) -> (Vec3, Vec3) {
         (ray.origin, ray.dir)
     }
     #[inline(always)]
@@ -88,6 +89,7 @@ impl TriTest for Exact {
 /// the shear constants that map the ray to +z.
 #[derive(Clone, Copy, Debug)]
 pub struct WoopRay {
+    /// The origin permuted to (kx, ky, kz).
     org: [f32; 3],
     k: [usize; 3],
     s: [f32; 3],
@@ -96,24 +98,37 @@ pub struct WoopRay {
 impl WoopRay {
     #[inline(always)]
     pub fn new(origin: Vec3, dir: Vec3) -> WoopRay {
-        let a = dir.abs();
-        let kz = if a.x >= a.y && a.x >= a.z {
-            0
-        } else if a.y >= a.z {
-            1
-        } else {
-            2
-        };
-        let mut kx = (kz + 1) % 3;
-        let mut ky = (kx + 1) % 3;
         let d = dir.to_array();
-        if d[kz] < 0.0 {
-            std::mem::swap(&mut kx, &mut ky);
-        }
+        WoopRay::with_inverse(origin, dir, &d.map(|d| 1.0 / d))
+    }
+
+    /// With `inv[k] = 1 / dir[k]` given: the shear constants are products with `1 / dir[kz]`
+    /// instead of Woop's quotients (the test stays watertight: one set of constants per ray).
+    #[inline(always)]
+    pub fn with_inverse(origin: Vec3, dir: Vec3, inv: &[f32; 3]) -> WoopRay {
+        // Branch-free axis choice: for random rays every branch here would be a coin flip.
+        let a = dir.abs();
+        let x_max = (a.x >= a.y) & (a.x >= a.z);
+        let y_max = !x_max & (a.y >= a.z);
+        let kz = (!x_max as usize) * (1 + !y_max as usize);
+        let d = dir.to_array();
+        let neg = (d[kz] < 0.0) as usize;
+        // kx = kz + 1, ky = kz + 2 (mod 3), swapped when dir[kz] < 0 (keeps the winding).
+        const KX: [[usize; 2]; 3] = [[1, 2], [2, 0], [0, 1]];
+        const KY: [[usize; 2]; 3] = [[2, 1], [0, 2], [1, 0]];
+        let (kx, ky) = (KX[kz][neg], KY[kz][neg]);
+        let o = origin.to_array();
+        let sz = inv[kz];
+        let s = if sz.is_finite() {
+            [d[kx] * sz, d[ky] * sz, sz]
+        } else {
+            // A subnormal largest component (an unnormalized tiny direction): divide.
+            [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]]
+        };
         WoopRay {
-            org: origin.to_array(),
+            org: [o[kx], o[ky], o[kz]],
             k: [kx, ky, kz],
-            s: [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]],
+            s,
         }
     }
 }
@@ -132,14 +147,15 @@ const DET_MAX: f32 = 1e30;
 pub fn intersect_watertight(r: &WoopRay, tri: &WTri) -> Option<f32> {
     let [kx, ky, kz] = r.k;
     let [sx, sy, sz] = r.s;
-    let o = r.org;
-    let a = [tri.v[0][0] - o[0], tri.v[0][1] - o[1], tri.v[0][2] - o[2]];
-    let b = [tri.v[1][0] - o[0], tri.v[1][1] - o[1], tri.v[1][2] - o[2]];
-    let c = [tri.v[2][0] - o[0], tri.v[2][1] - o[1], tri.v[2][2] - o[2]];
+    let [ox, oy, oz] = r.org;
+    let v = &tri.v;
+    // Vertices relative to the origin, read straight from memory in the ray's axis order
+    // (indexing a vector held in registers would go through the stack).
+    let (az, bz, cz) = (v[0][kz] - oz, v[1][kz] - oz, v[2][kz] - oz);
     // Shear (eq. 3): vertices in the ray's frame, where the ray is the +z axis through (0, 0).
-    let (ax, ay) = (a[kx] - sx * a[kz], a[ky] - sy * a[kz]);
-    let (bx, by) = (b[kx] - sx * b[kz], b[ky] - sy * b[kz]);
-    let (cx, cy) = (c[kx] - sx * c[kz], c[ky] - sy * c[kz]);
+    let (ax, ay) = ((v[0][kx] - ox) - sx * az, (v[0][ky] - oy) - sy * az);
+    let (bx, by) = ((v[1][kx] - ox) - sx * bz, (v[1][ky] - oy) - sy * bz);
+    let (cx, cy) = ((v[2][kx] - ox) - sx * cz, (v[2][ky] - oy) - sy * cz);
     // Scaled barycentrics as 2D edge functions (section 3.2).
     let u = cx * by - cy * bx;
     let v = ax * cy - ay * cx;
@@ -153,7 +169,7 @@ pub fn intersect_watertight(r: &WoopRay, tri: &WTri) -> Option<f32> {
     if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
         return None;
     }
-    let t = u * (sz * a[kz]) + v * (sz * b[kz]) + w * (sz * c[kz]);
+    let t = u * (sz * az) + v * (sz * bz) + w * (sz * cz);
     Some(t / det)
 }
 
@@ -161,10 +177,10 @@ pub fn intersect_watertight(r: &WoopRay, tri: &WTri) -> Option<f32> {
 #[cold]
 #[inline(never)]
 fn intersect_watertight_f64(r: &WoopRay, tri: &WTri) -> Option<f32> {
-    let [kx, ky, kz] = r.k;
-    let d = |i: usize, k: usize| tri.v[i][k] as f64 - r.org[k] as f64;
+    // Component j (0 = kx, 1 = ky, 2 = kz) of vertex i relative to the origin.
+    let d = |i: usize, j: usize| tri.v[i][r.k[j]] as f64 - r.org[j] as f64;
     let (sx, sy, sz) = (r.s[0] as f64, r.s[1] as f64, r.s[2] as f64);
-    let sh = |i: usize| (d(i, kx) - sx * d(i, kz), d(i, ky) - sy * d(i, kz));
+    let sh = |i: usize| (d(i, 0) - sx * d(i, 2), d(i, 1) - sy * d(i, 2));
     let ((ax, ay), (bx, by), (cx, cy)) = (sh(0), sh(1), sh(2));
     let u = cx * by - cy * bx;
     let v = ax * cy - ay * cx;
@@ -176,7 +192,7 @@ fn intersect_watertight_f64(r: &WoopRay, tri: &WTri) -> Option<f32> {
     if det == 0.0 || !det.is_finite() {
         return None;
     }
-    let t = (u * d(0, kz) + v * d(1, kz) + w * d(2, kz)) * sz / det;
+    let t = (u * d(0, 2) + v * d(1, 2) + w * d(2, 2)) * sz / det;
     Some(t as f32)
 }
 
@@ -186,8 +202,8 @@ pub struct Watertight;
 impl TriTest for Watertight {
     type Ray = WoopRay;
     #[inline(always)]
-    fn prepare(ray: &Ray) -> WoopRay {
-        WoopRay::new(ray.origin, ray.dir)
+    fn prepare(ray: &Ray, inv: &[f32; 3]) -> WoopRay {
+        WoopRay::with_inverse(ray.origin, ray.dir, inv)
     }
     #[inline(always)]
     fn test(r: &WoopRay, tri: &WTri) -> Option<f32> {
@@ -212,7 +228,7 @@ impl SlabRay {
     pub fn new(ray: &Ray) -> SlabRay {
         let d = ray.dir.to_array();
         let inv = d.map(|d| 1.0 / d);
-        let near = [0, 1, 2].map(|a| if inv[a] >= 0.0 { a } else { a + 3 });
+        let near = [0, 1, 2].map(|a| a + 3 * ((inv[a] < 0.0) as usize));
         SlabRay {
             origin: ray.origin.to_array(),
             inv,
@@ -226,14 +242,24 @@ impl SlabRay {
 
     /// Entry distance of `b` within [0, tmax] (conservative like [`RayBox::hit`]: far scaled by
     /// [`SLAB_ROBUST`]); the near/far planes are fixed per ray, so an empty box (min = +inf,
-    /// max = -inf) always misses.
+    /// max = -inf) always misses. The planes are picked per axis by the direction's sign (a
+    /// branch the same way for the whole ray), not by indexing: an indexed copy of the box would
+    /// go through the stack.
     #[inline(always)]
     pub fn hit(&self, b: &Aabb, tmax: f32) -> Option<f32> {
-        let c = aabb_array(b);
         let (o, i) = (self.origin, self.inv);
-        let t = |k: usize, a: usize| (c[k] - o[a]) * i[a];
-        let near = fmax(fmax(t(self.near[0], 0), t(self.near[1], 1)), fmax(t(self.near[2], 2), 0.0));
-        let far = fmin(fmin(t(self.far[0], 0), t(self.far[1], 1)), fmin(t(self.far[2], 2), tmax)) * SLAB_ROBUST;
+        let pick = |neg: bool, lo: f32, hi: f32| if neg { (hi, lo) } else { (lo, hi) };
+        let (nx, fx) = pick(self.near[0] == 3, b.min.x, b.max.x);
+        let (ny, fy) = pick(self.near[1] == 4, b.min.y, b.max.y);
+        let (nz, fz) = pick(self.near[2] == 5, b.min.z, b.max.z);
+        let near = fmax(
+            fmax((nx - o[0]) * i[0], (ny - o[1]) * i[1]),
+            fmax((nz - o[2]) * i[2], 0.0),
+        );
+        let far = fmin(
+            fmin((fx - o[0]) * i[0], (fy - o[1]) * i[1]),
+            fmin((fz - o[2]) * i[2], tmax),
+        ) * SLAB_ROBUST;
         if near <= far {
             Some(near)
         } else {
@@ -257,12 +283,6 @@ fn fmax(a: f32, b: f32) -> f32 {
     } else {
         b
     }
-}
-
-/// The six coordinates of a box as an array (min then max).
-#[inline(always)]
-fn aabb_array(b: &Aabb) -> [f32; 6] {
-    [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z]
 }
 
 /// A box test chosen per ray: the sign-selected slab test, or [`RayBox`] for parallel rays.
@@ -312,9 +332,9 @@ impl<'a> FastBvh2<'a> {
     fn one<T: TriTest, const STATS: bool>(&self, ray: &Ray, stack: &mut Stack) -> (Hit, u32, u32) {
         let sr = SlabRay::new(ray);
         if sr.parallel {
-            bvh2_one::<T, RayBox, STATS>(self.nodes, &self.store.tris, ray, &RayBox::new(ray), stack)
+            bvh2_one::<T, RayBox, STATS>(self.nodes, &self.store.tris, ray, &RayBox::new(ray), sr.inv, stack)
         } else {
-            bvh2_one::<T, SlabRay, STATS>(self.nodes, &self.store.tris, ray, &sr, stack)
+            bvh2_one::<T, SlabRay, STATS>(self.nodes, &self.store.tris, ray, &sr, sr.inv, stack)
         }
     }
 }
@@ -346,6 +366,7 @@ fn bvh2_one<T: TriTest, B: BoxTest, const STATS: bool>(
     tris: &[WTri],
     ray: &Ray,
     rb: &B,
+    inv: [f32; 3],
     stack: &mut Stack,
 ) -> (Hit, u32, u32) {
     let mut best = Hit {
@@ -359,7 +380,8 @@ fn bvh2_one<T: TriTest, B: BoxTest, const STATS: bool>(
     if ray.tmax.is_nan() || ray.tmax <= 0.0 || root.bounds.is_empty() || rb.hit(&root.bounds, best.t).is_none() {
         return (Hit::NONE, 0, 0);
     }
-    let tr = T::prepare(ray);
+    // Prepared at the first leaf: many rays never reach one.
+    let mut tr: Option<T::Ray> = None;
     stack.clear();
     let mut cur = 0u32;
     // A valid tree enters each node at most once per ray; the bound stops a cycle in a malformed one.
@@ -376,11 +398,12 @@ fn bvh2_one<T: TriTest, B: BoxTest, const STATS: bool>(
         if node.count > 0 {
             let first = (node.first as usize).min(tris.len());
             let end = first.saturating_add(node.count as usize).min(tris.len());
+            let tr = &*tr.get_or_insert_with(|| T::prepare(ray, &inv));
             for tri in &tris[first..end] {
                 if STATS {
                     tests += 1;
                 }
-                if let Some(t) = T::test(&tr, tri) {
+                if let Some(t) = T::test(tr, tri) {
                     accept(t, tri.prim, &mut best);
                 }
             }
