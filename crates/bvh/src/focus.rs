@@ -141,7 +141,7 @@ mod tests {
     }
 
     /// `focus_cost` of `tree()` with the default constants, for the primitives in focus.
-    fn focus_of(in_focus: &[bool]) -> (usize, f64) {
+    fn focus_of(in_focus: &[bool]) -> (u64, f64) {
         let (bvh, boxes) = tree();
         focus_cost(&bvh, in_focus, &boxes, CostParams::default()).unwrap()
     }

@@ -328,17 +328,22 @@ impl Store {
         also: &[&str],
         repair: bool,
     ) -> Option<T> {
-        let bad = |path: &Path, reason: &str| {
+        // With `repair`, what is wrong is said (and a bad file quarantined); the entry is recomputed.
+        let warn = |what: String| {
             if repair {
-                eprintln!(
-                    "warning: bad cache file {}: {reason}; recomputing",
-                    path.display()
-                );
-                if path.exists() {
-                    self.quarantine(path);
-                }
+                eprintln!("warning: {what}; recomputing");
             }
         };
+        let bad = |path: &Path, reason: &str| {
+            warn(format!("bad cache file {}: {reason}", path.display()));
+            if repair && path.exists() {
+                self.quarantine(path);
+            }
+        };
+        let unreadable = |path: &Path, e: std::io::Error| {
+            warn(format!("cache file {} listed by its manifest is unreadable ({e})", path.display()))
+        };
+        const DIFFERS: &str = "blake3 differs from its manifest (truncated, corrupt or foreign)";
         let mpath = self.path(stage, key, "json");
         let mbytes = match fs::read(&mpath) {
             Ok(b) => b,
@@ -368,49 +373,28 @@ impl Store {
         let bytes = match fs::read(&path) {
             Ok(b) => b,
             Err(e) => {
-                if repair {
-                    eprintln!(
-                        "warning: cache file {} listed by its manifest is unreadable ({e}); recomputing",
-                        path.display()
-                    );
-                }
+                unreadable(&path, e);
                 return None;
             }
         };
         if blake3::hash(&bytes).to_hex().as_str() != want {
-            bad(
-                &path,
-                "blake3 differs from its manifest (truncated, corrupt or foreign)",
-            );
+            bad(&path, DIFFERS);
             return None;
         }
         for x in also {
             let xpath = self.path(stage, key, x);
             let Some(xwant) = m.files.get(*x) else {
-                if repair {
-                    eprintln!(
-                        "warning: cache entry {stage}/{} lost its {x} file (cache repair?); recomputing",
-                        key.hex()
-                    );
-                }
+                warn(format!("cache entry {stage}/{} lost its {x} file (cache repair?)", key.hex()));
                 return None;
             };
             match fs::read(&xpath) {
                 Ok(b) if blake3::hash(&b).to_hex().as_str() == xwant => {}
                 Ok(_) => {
-                    bad(
-                        &xpath,
-                        "blake3 differs from its manifest (truncated, corrupt or foreign)",
-                    );
+                    bad(&xpath, DIFFERS);
                     return None;
                 }
                 Err(e) => {
-                    if repair {
-                        eprintln!(
-                            "warning: cache file {} listed by its manifest is unreadable ({e}); recomputing",
-                            xpath.display()
-                        );
-                    }
+                    unreadable(&xpath, e);
                     return None;
                 }
             }

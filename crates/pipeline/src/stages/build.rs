@@ -2,7 +2,7 @@
 //! bottom-up builders, the encode stage's sorted codes). Also what the BVH-producing stages share
 //! (build, optimize, compact): their artifact, the timed repeats with the determinism check, and
 //! the final BVH of a chain.
-use super::chain::{method_version, Plan};
+use super::chain::{method_params, Plan};
 use super::compact::Compact;
 use super::encode::Encode;
 use super::load::Load;
@@ -121,10 +121,8 @@ impl Stage for Build {
     type Sum = BvhSummary;
 
     fn declare(rt: &mut Runner, plan: &mut Plan) -> Result<Option<Node>> {
-        let mut p = plan.resolved.key_params();
-        p.insert("builder".into(), plan.resolved.builder.clone());
-        p.insert("repeat".into(), plan.spec.repeat.to_string());
-        method_version(&mut p, rt.registry.get(&plan.resolved.builder)?.version);
+        let (builder, repeat) = (&plan.resolved.builder, plan.spec.repeat);
+        let p = method_params(plan.resolved.key_params(), "builder", builder, repeat, rt.registry.get(builder)?.version);
         let mut inputs = vec![("load", plan.need("load")?.key)];
         if let Some(e) = plan.node("encode") {
             inputs.push(("encode", e.key));

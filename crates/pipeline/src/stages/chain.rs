@@ -165,6 +165,21 @@ pub(crate) fn method_version(params: &mut BTreeMap<String, String>, version: u32
     }
 }
 
+/// The parameters of a method's stage (build, encode, optimize): the method's own, its name under
+/// `kind`, the repeat count and (from 2 on) its version.
+pub(crate) fn method_params(
+    mut params: BTreeMap<String, String>,
+    kind: &str,
+    name: &str,
+    repeat: u32,
+    version: u32,
+) -> BTreeMap<String, String> {
+    params.insert(kind.into(), name.into());
+    params.insert("repeat".into(), repeat.to_string());
+    method_version(&mut params, version);
+    params
+}
+
 /// The summary of `S` if the chain has that stage.
 fn summary_if<S: Stage>(rt: &mut Runner, plan: &Plan) -> Result<Option<S::Sum>> {
     match plan.node(S::NAME) {

@@ -1,6 +1,6 @@
 //! The encode stage: Morton / EMC codes of the primitives and their sorted order (thesis 2.3.4,
 //! 3.7.1; Riemersma 2024), for the builders that take codes (lbvh, aac, ploc).
-use super::chain::{method_version, Plan};
+use super::chain::{method_params, Plan};
 use super::load::Load;
 use crate::error::{Error, Result};
 use crate::run::{secs, Files, Node, Runner, Stage, Timing};
@@ -45,10 +45,8 @@ impl Stage for Encode {
         let Some(e) = &plan.encoder else {
             return Ok(None);
         };
-        let mut p = e.params.clone();
-        p.insert("encoder".into(), e.encoder.clone());
-        p.insert("repeat".into(), plan.spec.repeat.to_string());
-        method_version(&mut p, rt.registry.encoder(&e.encoder)?.version);
+        let version = rt.registry.encoder(&e.encoder)?.version;
+        let p = method_params(e.params.clone(), "encoder", &e.encoder, plan.spec.repeat, version);
         let inputs = vec![("load", plan.need("load")?.key)];
         Ok(Some(Node::new(Self::NAME, rt.versions.encode, p, inputs)))
     }

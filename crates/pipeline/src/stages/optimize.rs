@@ -1,7 +1,7 @@
 //! The optimize stage: an optimizer of the registry (ibo, Kensler rotations) on the built BVH,
 //! before the compaction (Bittner 2013 3.6). Keeps the pass-by-pass trace beside the BVH.
 use super::build::{repeat_bvh, Build, BvhArtifact, BvhSummary};
-use super::chain::{cost_params, method_version, Plan};
+use super::chain::{cost_params, method_params, Plan};
 use super::load::Load;
 use crate::error::{Error, Result};
 use crate::run::{Files, Node, Runner, Stage, Timing};
@@ -35,11 +35,9 @@ impl Stage for Optimize {
         let Some(o) = &plan.optimizer else {
             return Ok(None);
         };
-        let mut p = o.params.clone();
-        p.insert("optimizer".into(), o.optimizer.clone());
+        let version = rt.registry.optimizer(&o.optimizer)?.version;
+        let mut p = method_params(o.params.clone(), "optimizer", &o.optimizer, plan.spec.repeat, version);
         p.extend(cost_params(o.cost));
-        p.insert("repeat".into(), plan.spec.repeat.to_string());
-        method_version(&mut p, rt.registry.optimizer(&o.optimizer)?.version);
         let inputs = vec![("build", plan.need("build")?.key)];
         Ok(Some(Node::new(Self::NAME, rt.versions.optimize, p, inputs)))
     }
