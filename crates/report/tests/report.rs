@@ -344,6 +344,7 @@ fn dense_plots_have_no_overlapping_labels() {
             seconds: 1e-3 * (1.0 + 0.05 * i as f64),
             sah_cost: cost,
             seconds_range: Some((0.9e-3 * (1.0 + 0.05 * i as f64), 1.3e-3 * (1.0 + 0.05 * i as f64))),
+            peer: false,
         });
     }
     // Identical points (layouts of one build used to stack on the build's point).
