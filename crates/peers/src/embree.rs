@@ -24,7 +24,11 @@ struct ENode {
     bounds: [RTCBounds; 2],
 }
 
-unsafe extern "C" fn create_node(a: RTCThreadLocalAllocator, n: u32, _: *mut c_void) -> *mut c_void {
+unsafe extern "C" fn create_node(
+    a: RTCThreadLocalAllocator,
+    n: u32,
+    _: *mut c_void,
+) -> *mut c_void {
     let p = rtcThreadLocalAlloc(a, std::mem::size_of::<ENode>(), 16) as *mut ENode;
     p.write(ENode {
         leaf: 0,
@@ -132,7 +136,10 @@ unsafe impl Send for Device {}
 
 fn device(threads: usize) -> Result<RTCDevice, String> {
     static DEVICES: OnceLock<Mutex<HashMap<usize, Device>>> = OnceLock::new();
-    let mut m = DEVICES.get_or_init(Default::default).lock().map_err(|e| e.to_string())?;
+    let mut m = DEVICES
+        .get_or_init(Default::default)
+        .lock()
+        .map_err(|e| e.to_string())?;
     if let Some(d) = m.get(&threads) {
         return Ok(d.0);
     }
@@ -295,14 +302,29 @@ pub fn trace(tris: &[Triangle], rays: &[Ray], quality: Quality) -> Result<PeerTr
         rtcSetSceneBuildQuality(scene, quality.rtc());
         let g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
         rtcSetGeometryBuildQuality(g, quality.rtc());
-        let vb = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 12, 3 * tris.len())
-            as *mut f32;
-        let ib = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 12, tris.len())
-            as *mut u32;
+        let vb = rtcSetNewGeometryBuffer(
+            g,
+            RTC_BUFFER_TYPE_VERTEX,
+            0,
+            RTC_FORMAT_FLOAT3,
+            12,
+            3 * tris.len(),
+        ) as *mut f32;
+        let ib = rtcSetNewGeometryBuffer(
+            g,
+            RTC_BUFFER_TYPE_INDEX,
+            0,
+            RTC_FORMAT_UINT3,
+            12,
+            tris.len(),
+        ) as *mut u32;
         if vb.is_null() || ib.is_null() {
             rtcReleaseGeometry(g);
             rtcReleaseScene(scene);
-            return Err(format!("Embree could not allocate buffers (RTCError {})", rtcGetDeviceError(dev)));
+            return Err(format!(
+                "Embree could not allocate buffers (RTCError {})",
+                rtcGetDeviceError(dev)
+            ));
         }
         for (i, t) in tris.iter().enumerate() {
             for k in 0..3 {

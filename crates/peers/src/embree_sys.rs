@@ -54,12 +54,24 @@ pub struct RTCBounds {
 
 pub type RTCCreateNodeFunction =
     unsafe extern "C" fn(RTCThreadLocalAllocator, u32, *mut c_void) -> *mut c_void;
-pub type RTCSetNodeChildrenFunction = unsafe extern "C" fn(*mut c_void, *mut *mut c_void, u32, *mut c_void);
-pub type RTCSetNodeBoundsFunction = unsafe extern "C" fn(*mut c_void, *mut *const RTCBounds, u32, *mut c_void);
-pub type RTCCreateLeafFunction =
-    unsafe extern "C" fn(RTCThreadLocalAllocator, *const RTCBuildPrimitive, usize, *mut c_void) -> *mut c_void;
-pub type RTCSplitPrimitiveFunction =
-    unsafe extern "C" fn(*const RTCBuildPrimitive, u32, f32, *mut RTCBounds, *mut RTCBounds, *mut c_void);
+pub type RTCSetNodeChildrenFunction =
+    unsafe extern "C" fn(*mut c_void, *mut *mut c_void, u32, *mut c_void);
+pub type RTCSetNodeBoundsFunction =
+    unsafe extern "C" fn(*mut c_void, *mut *const RTCBounds, u32, *mut c_void);
+pub type RTCCreateLeafFunction = unsafe extern "C" fn(
+    RTCThreadLocalAllocator,
+    *const RTCBuildPrimitive,
+    usize,
+    *mut c_void,
+) -> *mut c_void;
+pub type RTCSplitPrimitiveFunction = unsafe extern "C" fn(
+    *const RTCBuildPrimitive,
+    u32,
+    f32,
+    *mut RTCBounds,
+    *mut RTCBounds,
+    *mut c_void,
+);
 pub type RTCProgressMonitorFunction = unsafe extern "C" fn(*mut c_void, f64) -> bool;
 
 #[repr(C)]
@@ -176,7 +188,11 @@ extern "C" {
     pub fn rtcGetDeviceError(device: RTCDevice) -> u32;
     pub fn rtcNewBVH(device: RTCDevice) -> RTCBVH;
     pub fn rtcBuildBVH(args: *const RTCBuildArguments) -> *mut c_void;
-    pub fn rtcThreadLocalAlloc(allocator: RTCThreadLocalAllocator, bytes: usize, align: usize) -> *mut c_void;
+    pub fn rtcThreadLocalAlloc(
+        allocator: RTCThreadLocalAllocator,
+        bytes: usize,
+        align: usize,
+    ) -> *mut c_void;
     pub fn rtcReleaseBVH(bvh: RTCBVH);
     pub fn rtcNewScene(device: RTCDevice) -> RTCScene;
     pub fn rtcReleaseScene(scene: RTCScene);
@@ -195,5 +211,9 @@ extern "C" {
     pub fn rtcAttachGeometry(scene: RTCScene, geometry: RTCGeometry) -> u32;
     pub fn rtcReleaseGeometry(geometry: RTCGeometry);
     pub fn rtcCommitScene(scene: RTCScene);
-    pub fn rtcIntersect1(scene: RTCScene, context: *mut RTCIntersectContext, rayhit: *mut RTCRayHit);
+    pub fn rtcIntersect1(
+        scene: RTCScene,
+        context: *mut RTCIntersectContext,
+        rayhit: *mut RTCRayHit,
+    );
 }

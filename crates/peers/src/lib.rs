@@ -71,11 +71,13 @@ pub fn split_triangle(tri: &Triangle, dim: usize, pos: f32) -> (Aabb, Aabb) {
 pub fn hits_agree(ours: &Hit, peer: &Hit, rel: f32) -> bool {
     match (ours.is_hit(), peer.is_hit()) {
         (false, false) => true,
-        (true, true) => ours.prim == peer.prim || (ours.t - peer.t).abs() <= rel * ours.t.abs().max(f32::MIN_POSITIVE),
+        (true, true) => {
+            ours.prim == peer.prim
+                || (ours.t - peer.t).abs() <= rel * ours.t.abs().max(f32::MIN_POSITIVE)
+        }
         _ => false,
     }
 }
-
 
 /// The peer methods (their [`bvhlab_params::Method`]s are in [`methods`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -87,7 +89,12 @@ pub enum Peer {
 }
 
 impl Peer {
-    pub const ALL: [Peer; 4] = [Peer::EmbreeMorton, Peer::EmbreeBinned, Peer::EmbreeSbvh, Peer::Obvhs];
+    pub const ALL: [Peer; 4] = [
+        Peer::EmbreeMorton,
+        Peer::EmbreeBinned,
+        Peer::EmbreeSbvh,
+        Peer::Obvhs,
+    ];
 
     pub fn method(self) -> &'static bvhlab_params::Method {
         match self {
@@ -139,6 +146,14 @@ impl Peer {
     }
 
     #[cfg(has_embree)]
+    fn quality(self) -> embree::Quality {
+        match self {
+            Peer::EmbreeMorton => embree::Quality::Low,
+            Peer::EmbreeBinned => embree::Quality::Medium,
+            _ => embree::Quality::High,
+        }
+    }
+
     fn build_embree(
         self,
         tris: &[Triangle],
@@ -147,38 +162,39 @@ impl Peer {
         c_t: f32,
         c_i: f32,
     ) -> Result<PeerBuild, String> {
-        let u = |k: &str| params.get(k).and_then(|v| v.parse::<u32>().ok()).ok_or(format!("embree: bad `{k}`"));
-        let quality = match self {
-            Peer::EmbreeMorton => embree::Quality::Low,
-            Peer::EmbreeBinned => embree::Quality::Medium,
-            _ => embree::Quality::High,
-        };
-        let cfg = embree::EmbreeConfig {
-            quality,
-            max_leaf: u("max_leaf")?,
-            c_t,
-            c_i,
-            threads: u("threads")? as usize,
-        };
-        embree::build(tris, boxes, &cfg)
-    }
-
-    #[cfg(not(has_embree))]
-    fn build_embree(
-        self,
-        _: &[Triangle],
-        _: &[Aabb],
-        _: &bvhlab_params::Params,
-        _: f32,
-        _: f32,
-    ) -> Result<PeerBuild, String> {
-        Err(EMBREE_MISSING.into())
+        #[cfg(not(has_embree))]
+        {
+            let _ = (tris, boxes, params, c_t, c_i);
+            Err(EMBREE_MISSING.into())
+        }
+        #[cfg(has_embree)]
+        {
+            let u = |k: &str| {
+                params
+                    .get(k)
+                    .and_then(|v| v.parse::<u32>().ok())
+                    .ok_or(format!("embree: bad `{k}`"))
+            };
+            let cfg = embree::EmbreeConfig {
+                quality: self.quality(),
+                max_leaf: u("max_leaf")?,
+                c_t,
+                c_i,
+                threads: u("threads")? as usize,
+            };
+            embree::build(tris, boxes, &cfg)
+        }
     }
 
     /// The peer's own traversal of `rays` (one thread). obvhs traces the very tree bvhlab imported
     /// (converted back to its `Bvh2`); Embree traces only its own structures, so it commits a scene
     /// of the same build quality.
-    pub fn trace(self, bvh: &Bvh, tris: &[Triangle], rays: &[bvhlab_trace::Ray]) -> Result<PeerTrace, String> {
+    pub fn trace(
+        self,
+        bvh: &Bvh,
+        tris: &[Triangle],
+        rays: &[bvhlab_trace::Ray],
+    ) -> Result<PeerTrace, String> {
         self.available()?;
         let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| match self {
             Peer::Obvhs => Ok(obvhs_ploc::trace(bvh, tris, rays)),
@@ -187,19 +203,20 @@ impl Peer {
         caught.unwrap_or_else(|_| Err(format!("{} traversal panicked", self.library())))
     }
 
-    #[cfg(has_embree)]
-    fn trace_embree(self, tris: &[Triangle], rays: &[bvhlab_trace::Ray]) -> Result<PeerTrace, String> {
-        let q = match self {
-            Peer::EmbreeMorton => embree::Quality::Low,
-            Peer::EmbreeBinned => embree::Quality::Medium,
-            _ => embree::Quality::High,
-        };
-        embree::trace(tris, rays, q)
-    }
-
-    #[cfg(not(has_embree))]
-    fn trace_embree(self, _: &[Triangle], _: &[bvhlab_trace::Ray]) -> Result<PeerTrace, String> {
-        Err(EMBREE_MISSING.into())
+    fn trace_embree(
+        self,
+        tris: &[Triangle],
+        rays: &[bvhlab_trace::Ray],
+    ) -> Result<PeerTrace, String> {
+        #[cfg(not(has_embree))]
+        {
+            let _ = (tris, rays);
+            Err(EMBREE_MISSING.into())
+        }
+        #[cfg(has_embree)]
+        {
+            embree::trace(tris, rays, self.quality())
+        }
     }
 }
 
@@ -215,7 +232,10 @@ mod tests {
             match p.available() {
                 Ok(()) => assert!(EMBREE_AVAILABLE),
                 Err(how) => {
-                    assert!(!EMBREE_AVAILABLE && how.contains("scripts/setup.sh"), "{how}");
+                    assert!(
+                        !EMBREE_AVAILABLE && how.contains("scripts/setup.sh"),
+                        "{how}"
+                    );
                     assert!(p.build(&[], &[], &Default::default(), 3.0, 2.0).is_err());
                 }
             }

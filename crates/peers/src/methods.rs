@@ -135,19 +135,38 @@ pub const OBVHS: Method = Method::new(
 /// `preset` fills every field not given; given fields override it (e.g. `reinsertion_batch_ratio=0`
 /// for PLOC without the reinsertion optimizer).
 fn obvhs_finish(given: &Params, params: &mut Params) -> Result<(), String> {
-    let name = params.get("preset").cloned().unwrap_or_else(|| "medium".into());
-    let p = crate::obvhs_ploc::preset(&name).ok_or_else(|| format!("unknown obvhs preset `{name}`"))?;
+    let name = params
+        .get("preset")
+        .cloned()
+        .unwrap_or_else(|| "medium".into());
+    let p =
+        crate::obvhs_ploc::preset(&name).ok_or_else(|| format!("unknown obvhs preset `{name}`"))?;
     let values = [
-        ("ploc_search_distance", crate::obvhs_ploc::search_radius(p.ploc_search_distance).to_string()),
-        ("search_depth_threshold", p.search_depth_threshold.to_string()),
-        ("reinsertion_batch_ratio", fmt_f32(p.reinsertion_batch_ratio)),
+        (
+            "ploc_search_distance",
+            crate::obvhs_ploc::search_radius(p.ploc_search_distance).to_string(),
+        ),
+        (
+            "search_depth_threshold",
+            p.search_depth_threshold.to_string(),
+        ),
+        (
+            "reinsertion_batch_ratio",
+            fmt_f32(p.reinsertion_batch_ratio),
+        ),
         (
             "post_collapse_reinsertion_batch_ratio_multiplier",
             fmt_f32(p.post_collapse_reinsertion_batch_ratio_multiplier),
         ),
-        ("sort_precision", crate::obvhs_ploc::sort_bits(p.sort_precision).to_string()),
+        (
+            "sort_precision",
+            crate::obvhs_ploc::sort_bits(p.sort_precision).to_string(),
+        ),
         ("max_prims_per_leaf", p.max_prims_per_leaf.to_string()),
-        ("collapse_traversal_cost", fmt_f32(p.collapse_traversal_cost)),
+        (
+            "collapse_traversal_cost",
+            fmt_f32(p.collapse_traversal_cost),
+        ),
     ];
     for (k, v) in values {
         if !given.contains_key(k) {
@@ -174,16 +193,25 @@ fn obvhs_label(params: &Params) -> String {
 
 /// obvhs' parameters from canonical ones (finish already applied).
 pub fn obvhs_params(p: &Params) -> Result<obvhs::BvhBuildParams, String> {
-    let get = |k: &str| p.get(k).map(String::as_str).ok_or_else(|| format!("obvhs: `{k}` missing"));
-    let f = |k: &str| -> Result<f32, String> { get(k)?.parse().map_err(|_| format!("obvhs: bad `{k}`")) };
-    let u = |k: &str| -> Result<u32, String> { get(k)?.parse().map_err(|_| format!("obvhs: bad `{k}`")) };
+    let get = |k: &str| {
+        p.get(k)
+            .map(String::as_str)
+            .ok_or_else(|| format!("obvhs: `{k}` missing"))
+    };
+    let f = |k: &str| -> Result<f32, String> {
+        get(k)?.parse().map_err(|_| format!("obvhs: bad `{k}`"))
+    };
+    let u = |k: &str| -> Result<u32, String> {
+        get(k)?.parse().map_err(|_| format!("obvhs: bad `{k}`"))
+    };
     let mut b = crate::obvhs_ploc::preset(get("preset")?).ok_or("obvhs: bad preset")?;
     b.pre_split = false;
-    b.ploc_search_distance =
-        crate::obvhs_ploc::search_distance(u("ploc_search_distance")?).ok_or("obvhs: bad ploc_search_distance")?;
+    b.ploc_search_distance = crate::obvhs_ploc::search_distance(u("ploc_search_distance")?)
+        .ok_or("obvhs: bad ploc_search_distance")?;
     b.search_depth_threshold = u("search_depth_threshold")? as usize;
     b.reinsertion_batch_ratio = f("reinsertion_batch_ratio")?;
-    b.post_collapse_reinsertion_batch_ratio_multiplier = f("post_collapse_reinsertion_batch_ratio_multiplier")?;
+    b.post_collapse_reinsertion_batch_ratio_multiplier =
+        f("post_collapse_reinsertion_batch_ratio_multiplier")?;
     b.sort_precision = if u("sort_precision")? == 128 {
         obvhs::ploc::SortPrecision::U128
     } else {

@@ -15,7 +15,14 @@ use obvhs_glam::Vec3A;
 use std::time::{Duration, Instant};
 
 /// obvhs' presets (`BvhBuildParams::fastest_build()` ... `very_slow_build()`).
-pub const PRESETS: &[&str] = &["fastest", "very_fast", "fast", "medium", "slow", "very_slow"];
+pub const PRESETS: &[&str] = &[
+    "fastest",
+    "very_fast",
+    "fast",
+    "medium",
+    "slow",
+    "very_slow",
+];
 
 pub fn preset(name: &str) -> Option<BvhBuildParams> {
     Some(match name {
@@ -80,7 +87,12 @@ pub fn build(boxes: &[Aabb], params: BvhBuildParams) -> Result<PeerBuild, String
     let b = obvhs::bvh2::builder::build_bvh2(&prims, params, &mut core);
     let wall = t.elapsed();
     // In a debug build obvhs validates its tree inside the call; its core time excludes that.
-    let seconds = if cfg!(debug_assertions) { core } else { core.min(wall) }.as_secs_f64();
+    let seconds = if cfg!(debug_assertions) {
+        core
+    } else {
+        core.min(wall)
+    }
+    .as_secs_f64();
     Ok(PeerBuild {
         bvh: import(&b)?,
         seconds,
