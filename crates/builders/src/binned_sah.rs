@@ -314,60 +314,18 @@ impl Binner {
     }
 
     /// The best plane over the live axes of `b`; ties go to the lower axis, then the lower plane.
-    /// The two sweeps of [`Binner::sweep`] per axis over its non-empty bins only: the planes
-    /// between two non-empty bins all give the same children (an empty bin adds nothing to a box
-    /// or a count), hence bit-identical costs, and the lowest of them, right after the left
-    /// group's last non-empty bin, is the one the full sweep's tie rule keeps. Most nodes are small
-    /// (fewer primitives than `3 k` bins), where this skips most of the sweep.
     fn sweep3(&mut self, s: f32, b: &Bins3) -> Option<BinSplit> {
-        let sv = Vec3A::splat(s);
-        let k = self.k;
         let mut best: Option<BinSplit> = None;
-        let mut nonempty = std::mem::take(&mut self.nonempty);
         for axis in 0..3 {
             if !b.live[axis] {
                 continue;
             }
-            let count = &self.count[axis * k..(axis + 1) * k];
-            let bounds = &self.bounds[axis * k..(axis + 1) * k];
-            nonempty.clear();
-            nonempty.extend((0..k as u32).filter(|&i| count[i as usize] != 0));
-            let m = nonempty.len();
-            if m < 2 {
-                continue;
-            }
-            // Left sweep: after the j-th non-empty bin.
-            let la = &mut self.left_area[..m - 1];
-            let lc = &mut self.left_count[..m - 1];
-            let mut acc = BoxA::EMPTY;
-            let mut n = 0;
-            for ((a, c), &i) in la.iter_mut().zip(lc.iter_mut()).zip(&nonempty) {
-                acc = acc.union(&bounds[i as usize]);
-                n += count[i as usize];
-                *a = acc.half_area_scaled(sv);
-                *c = n;
-            }
-            let mut acc = BoxA::EMPTY;
-            let mut n_r = 0;
-            let mut ax_best = (f32::INFINITY, usize::MAX);
-            for j in (0..m - 1).rev() {
-                let i = nonempty[j + 1] as usize;
-                acc = acc.union(&bounds[i]);
-                n_r += count[i];
-                let cost = la[j] * lc[j] as f32 + acc.half_area_scaled(sv) * n_r as f32;
-                if cost <= ax_best.0 {
-                    ax_best = (cost, nonempty[j] as usize);
+            if let Some(c) = self.sweep_axis(s, axis) {
+                if best.is_none_or(|b| c.cost < b.cost) {
+                    best = Some(c);
                 }
             }
-            if ax_best.1 != usize::MAX && best.is_none_or(|b| ax_best.0 < b.cost) {
-                best = Some(BinSplit {
-                    last_left_bin: ax_best.1,
-                    axis,
-                    cost: ax_best.0,
-                });
-            }
         }
-        self.nonempty = nonempty;
         best
     }
 
@@ -392,36 +350,47 @@ impl Binner {
         self.sweep_axis(s, 0)
     }
 
-    /// [`Binner::sweep`] over the bins of `axis` (`axis * k ..`).
+    /// [`Binner::sweep`] over the bins of `axis` (`axis * k ..`), visiting only its non-empty
+    /// bins: the planes between two non-empty bins all give the same children (an empty bin adds
+    /// nothing to a box or a count), hence bit-identical costs, and the lowest of them, right after
+    /// the left group's last non-empty bin, is the one the full sweep's tie rule keeps. So the
+    /// result is the full sweep's, and small nodes (most of them: fewer primitives than bins) skip
+    /// most of it.
     fn sweep_axis(&mut self, s: f32, axis: usize) -> Option<BinSplit> {
-        let s = glam::Vec3A::splat(s);
+        let sv = Vec3A::splat(s);
         let k = self.k;
         let count = &self.count[axis * k..(axis + 1) * k];
         let bounds = &self.bounds[axis * k..(axis + 1) * k];
-        // Sweep 1, left to right: accumulate counts and boxes left of each plane.
+        let nonempty = &mut self.nonempty;
+        nonempty.clear();
+        nonempty.extend((0..k as u32).filter(|&i| count[i as usize] != 0));
+        let m = nonempty.len();
+        if m < 2 {
+            return None;
+        }
+        // Sweep 1, left to right: boxes and counts up to each non-empty bin.
+        let la = &mut self.left_area[..m - 1];
+        let lc = &mut self.left_count[..m - 1];
         let mut acc = BoxA::EMPTY;
         let mut n = 0;
-        for i in 0..k - 1 {
-            acc = acc.union(&bounds[i]);
-            n += count[i];
-            self.left_area[i] = acc.half_area_scaled(s);
-            self.left_count[i] = n;
+        for ((a, c), &i) in la.iter_mut().zip(lc.iter_mut()).zip(nonempty.iter()) {
+            acc = acc.union(&bounds[i as usize]);
+            n += count[i as usize];
+            *a = acc.half_area_scaled(sv);
+            *c = n;
         }
-        // Sweep 2, right to left: evaluate the k-1 planes (plane i lies between bins i and i+1).
-        let mut best: Option<BinSplit> = None;
+        // Sweep 2, right to left: the plane after the j-th non-empty bin.
         let mut acc = BoxA::EMPTY;
         let mut n_r = 0;
-        for i in (0..k - 1).rev() {
-            acc = acc.union(&bounds[i + 1]);
-            n_r += count[i + 1];
-            let n_l = self.left_count[i];
-            if n_l == 0 || n_r == 0 {
-                continue;
-            }
-            let cost = self.left_area[i] * n_l as f32 + acc.half_area_scaled(s) * n_r as f32;
+        let mut best: Option<BinSplit> = None;
+        for j in (0..m - 1).rev() {
+            let i = nonempty[j + 1] as usize;
+            acc = acc.union(&bounds[i]);
+            n_r += count[i];
+            let cost = la[j] * lc[j] as f32 + acc.half_area_scaled(sv) * n_r as f32;
             if best.is_none_or(|b| cost <= b.cost) {
                 best = Some(BinSplit {
-                    last_left_bin: i,
+                    last_left_bin: nonempty[j] as usize,
                     axis,
                     cost,
                 });
