@@ -23,7 +23,8 @@ shift $(( $# < 3 ? $# : 3 ))
 scenes=("$@")
 [[ ${#scenes[@]} -gt 0 ]] || scenes=("$shared/scenes/stanford_dragon.obj.gz" "$shared/scenes/conference.obj.gz")
 [[ -x "$anchor" ]] || { echo "missing $anchor" >&2; exit 1; }
-cargo build --quiet --release -p bvhlab-builders --example build_bench --manifest-path "$repo/Cargo.toml"
+# NO_BUILD=1 uses the build_bench binary as it is (e.g. while another cargo command holds the target dir).
+[[ -n "${NO_BUILD:-}" ]] || cargo build --quiet --release -p bvhlab-builders --example build_bench --manifest-path "$repo/Cargo.toml"
 
 field() { sed -n "s/.*\"$2\":\([-0-9.eE+]*\).*/\1/p" <<<"$1"; }
 part() { sed -n "s/.*\"$2\":{\([^}]*\)}.*/\1/p" <<<"$1"; }

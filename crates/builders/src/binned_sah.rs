@@ -3,8 +3,8 @@
 //! sweeps over the bins, the original SAH leaf-vs-split test (eq. 2 and 3), in-place partition,
 //! iteration with an explicit stack.
 use crate::primref::{
-    make_refs, make_refs_parallel, object_median, partition, partition_known_bounds,
-    partition_parallel, PrimRef,
+    make_refs, make_refs_parallel, object_median, partition_known_bounds, partition_parallel,
+    PrimRef,
 };
 use crate::simd_box::BoxA;
 use crate::topdown::{build_nodes, build_nodes_parallel, Range};
@@ -207,7 +207,11 @@ struct Bins {
 /// clamped so float rounding can never index past the last bin (NaN maps to bin 0).
 #[inline(always)]
 fn bin_of(c: f32, b: &Bins, k: usize) -> usize {
-    (((c * b.s - b.cb_min) * b.k0) as usize).min(k - 1)
+    // The same bins as `(x as usize).min(k - 1)` for every x (NaN and negatives to 0, the rest
+    // truncated and capped), clamped in float first so that one convert suffices.
+    let f = ((c * b.s - b.cb_min) * b.k0).max(0.0).min((k - 1) as f32);
+    // SAFETY: `f` is in [0, k - 1] (`max` maps NaN to 0), so it fits a u32.
+    unsafe { f.to_int_unchecked::<u32>() as usize }
 }
 
 /// The binning frames of all three axes ([`Axes::All`]): eq. 6 per axis over the scaled centroids
@@ -572,7 +576,11 @@ fn split(
             // the same float expression as in `bin`, so the sides match the counts the SAH was
             // computed from.
             let last = best.last_left_bin;
-            let (left, right) = partition(refs, r, |p| bin_of(p.c[axis], &bins, k) <= last);
+            // The children's boxes are the unions of their bins' boxes (exact: min / max of the
+            // same boxes), so the loop gathers only the centroid bounds.
+            let (lb, rb) = binner.child_boxes(0, last);
+            let (left, right) =
+                partition_known_bounds(refs, r, lb, rb, |p| bin_of(p.c[axis], &bins, k) <= last);
             debug_assert!(left.len() > 0 && right.len() > 0);
             Some((left, right))
         }
