@@ -73,6 +73,15 @@ bench-trace RUNS="3" *SCENES="":
     echo "# uptime: $(uptime)"
     cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --tools ../shared/tools $scenes
 
+# issue 19.4: binned SAH (thesis and all-axes configurations) against tinybvh's BuildAVX, 1 thread, alternated.
+bench-binned RUNS="5" ROUNDS="3":
+    bash scripts/bench-binned.sh {{RUNS}} {{ROUNDS}}
+
+# Peak RSS and build heap of each builder on a scene (default the dragon), one process per builder.
+mem SCENE="../shared/scenes/stanford_dragon.obj.gz":
+    cargo build --quiet --release -p bvhlab-builders --example build_mem
+    for b in spatial-median binned-sah binned-sah:axes=all:bins=8 sweep-sah lbvh aac-hq aac-fast ploc-10 ploc-25 bonsai-bp1; do ${CARGO_TARGET_DIR:-target}/release/examples/build_mem {{SCENE}} $b; done
+
 # The Morton-family speed targets with PASS/MISS, beside Embree, in one run.
 bench-morton RUNS="5":
     bash scripts/bench-builders.sh morton {{RUNS}}

@@ -3,7 +3,8 @@
 //! SCENE is a path (.obj / .obj.gz) or `gen:...`. Everything runs inside a rayon pool of `threads`
 //! threads. BUILDERS is an optional comma-separated subset of: spatial-median, binned-sah,
 //! binned-sah-any-axis, sweep-sah, binned-sah-par, lbvh, aac-hq, aac-fast, ploc-10, ploc-25,
-//! ploc-100, bonsai-bp0, bonsai-bp1, bonsai-bp2 (default: all). The Bonsai variants are thesis
+//! ploc-100, bonsai-bp0, bonsai-bp1, bonsai-bp2 (default: all), or `binned-sah:k=v:k=v...` with any of
+//! bins, axes (largest | all), leaf, stop (split-axis | any-axis), par (1: the parallel build). The Bonsai variants are thesis
 //! table 3 (BP0: N = 512; BP1: N = 512, T = 0.1, pruning; BP2: N = 4096, T = 0.01, pruning) with the
 //! same leaf threshold and SAH constants as the other top-down builders. Boxes and centres are computed once (not timed); each builder runs
 //! `runs` times.
@@ -16,20 +17,20 @@
 //! `bvh_fnv`, a hash of its canonical bytes (equal hashes = identical trees, e.g. the parallel
 //! binned SAH vs the sequential one). A builder that panics (not implemented yet) gets an `error`
 //! line and the others still run.
-use bvhlab_geom::stats::{median, min_max};
 use bvhlab_builders::aac::AacConfig;
-use bvhlab_builders::binned_sah::CentroidTermination;
+use bvhlab_builders::binned_sah::{BinnedOptions, CentroidTermination};
 use bvhlab_builders::bonsai::{self, BonsaiConfig};
 use bvhlab_builders::ploc::PlocConfig;
 use bvhlab_builders::{
     aac, binned_sah, lbvh, ploc, spatial_median, sweep_sah, SortedCodes, TopDownConfig,
 };
 use bvhlab_bvh::{collapse::collapse, metrics, validate, Aabb, Bvh, CostParams, Vec3};
+use bvhlab_geom::stats::{median, min_max};
 use bvhlab_morton::{AutoFor, Bits, EncodeConfig};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::time::Instant;
 
-const ALL: [&str; 14] = [
+pub(crate) const ALL: [&str; 14] = [
     "spatial-median",
     "binned-sah",
     "binned-sah-any-axis",
@@ -49,7 +50,7 @@ const ALL: [&str; 14] = [
 /// Milliseconds of one run, split into the pipeline parts (encode and collapse are 0 for the
 /// top-down builders, which take boxes and centres directly and make multi-primitive leaves).
 #[derive(Clone, Copy, Default)]
-struct Parts {
+pub(crate) struct Parts {
     encode: f64,
     build: f64,
     collapse: f64,
@@ -60,9 +61,24 @@ fn ms_since(t: Instant) -> f64 {
 }
 
 /// One run of `name`: the final tree and its timed parts.
-fn run(name: &str, boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> (Bvh, Parts) {
+pub(crate) fn run(
+    name: &str,
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    cfg: &TopDownConfig,
+) -> (Bvh, Parts) {
     let mut p = Parts::default();
     let t = Instant::now();
+    if let Some(spec) = name.strip_prefix("binned-sah:") {
+        let (opts, cfg, par) = binned_spec(spec, cfg);
+        let bvh = if par {
+            binned_sah::build_parallel_with_options(boxes, centers, &opts, &cfg)
+        } else {
+            binned_sah::build_with_options(boxes, centers, &opts, &cfg)
+        };
+        p.build = ms_since(t);
+        return (bvh, p);
+    }
     let top_down = match name {
         "spatial-median" => Some(spatial_median::build(boxes, centers, cfg)),
         "binned-sah" => Some(binned_sah::build(boxes, centers, 16, cfg)),
@@ -134,6 +150,44 @@ fn run(name: &str, boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> (Bv
     (bvh, p)
 }
 
+/// `binned-sah:k=v:k=v...` (keys bins, axes = largest | all, leaf, stop = split-axis | any-axis,
+/// par = 0 | 1): the binned SAH with any of its parameters (defaults as the method's).
+fn binned_spec(spec: &str, cfg: &TopDownConfig) -> (BinnedOptions, TopDownConfig, bool) {
+    let mut opts = BinnedOptions::new(16);
+    let mut cfg = *cfg;
+    let mut par = false;
+    for kv in spec.split(':').filter(|s| !s.is_empty()) {
+        let (k, v) = kv
+            .split_once('=')
+            .unwrap_or_else(|| usage(&format!("bad {kv:?}")));
+        match k {
+            "bins" => {
+                opts.bins = v
+                    .parse()
+                    .unwrap_or_else(|_| usage(&format!("bad value in {kv:?}")))
+            }
+            "axes" => {
+                opts.axes = v
+                    .parse()
+                    .unwrap_or_else(|_| usage(&format!("bad value in {kv:?}")))
+            }
+            "stop" => {
+                opts.term = v
+                    .parse()
+                    .unwrap_or_else(|_| usage(&format!("bad value in {kv:?}")))
+            }
+            "leaf" => {
+                cfg.leaf = v
+                    .parse()
+                    .unwrap_or_else(|_| usage(&format!("bad value in {kv:?}")))
+            }
+            "par" => par = v == "1",
+            _ => usage(&format!("unknown key in {kv:?}")),
+        }
+    }
+    (opts, cfg, par)
+}
+
 /// 64-bit FNV-1a of the canonical bytes: enough to tell identical trees apart in a benchmark log.
 fn fnv(bvh: &Bvh) -> u64 {
     bvh.canonical_bytes()
@@ -166,6 +220,9 @@ fn main() {
         Some(list) => list
             .split(',')
             .map(|b| {
+                if b.starts_with("binned-sah:") {
+                    return b;
+                }
                 ALL.iter()
                     .copied()
                     .find(|a| *a == b)

@@ -2,14 +2,16 @@
 //! node's centroid bounds along their largest axis only, binning by eq. 6 (epsilon 1e-5), two
 //! sweeps over the bins, the original SAH leaf-vs-split test (eq. 2 and 3), in-place partition,
 //! iteration with an explicit stack.
-use crate::simd_box::BoxA;
 use crate::primref::{
-    make_refs, make_refs_parallel, object_median, partition, partition_parallel, PrimRef,
+    make_refs, make_refs_parallel, object_median, partition_known_bounds, partition_parallel,
+    PrimRef,
 };
+use crate::simd_box::BoxA;
 use crate::topdown::{build_nodes, build_nodes_parallel, Range};
 use crate::{TopDownConfig, LEAF};
 use bvhlab_bvh::{Aabb, Bvh, Node, Vec3};
 use bvhlab_params::{Kind, Method, ParamSpec};
+use glam::Vec3A;
 use serde::{Deserialize, Serialize};
 
 /// Registered with [`build_parallel`] (thesis 3.1.2).
@@ -32,6 +34,14 @@ pub const METHOD: Method = Method::new(
             kind: Kind::Choice(&["split-axis", "any-axis"]),
             about: "stop when the centroid extent is < 1e-7 of the node box along the split axis (default) or along any \
                     axis (the thesis' literal rule, 3.1.1; reproduces its BIN column)",
+            in_label: false,
+        },
+        ParamSpec {
+            name: "axes",
+            default: "largest",
+            kind: Kind::Choice(&["largest", "all"]),
+            about: "bin along the largest centroid axis only (Wald 2007, thesis 3.1.1; the default) or along all three \
+                    in one pass over the primitives, taking the cheapest plane of any axis (as Embree and tinybvh do)",
             in_label: false,
         },
     ],
@@ -73,6 +83,49 @@ impl std::str::FromStr for CentroidTermination {
     }
 }
 
+/// Which axes a node bins along.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Axes {
+    /// The largest axis of the centroid bounds only (Wald 2007; thesis 3.1.1). The default.
+    #[default]
+    Largest,
+    /// All three axes in one pass over the primitives (each primitive's three bin indices from one
+    /// SIMD expression), the cheapest of the `3 (k - 1)` planes wins. Lower SAH cost for about the
+    /// cost of the largest-axis build (issue 19.4: tinybvh's BuildAVX and Embree bin all axes).
+    All,
+}
+
+impl std::str::FromStr for Axes {
+    type Err = ();
+    fn from_str(s: &str) -> Result<Axes, ()> {
+        match s {
+            "largest" => Ok(Axes::Largest),
+            "all" => Ok(Axes::All),
+            _ => Err(()),
+        }
+    }
+}
+
+/// Everything of [`METHOD`] that shapes the tree besides [`TopDownConfig`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BinnedOptions {
+    /// `k` of the thesis (16 in its tables); values below 2 are treated as 2.
+    pub bins: u32,
+    pub term: CentroidTermination,
+    pub axes: Axes,
+}
+
+impl BinnedOptions {
+    /// The thesis' configuration (largest axis) with `bins` bins and the default termination.
+    pub fn new(bins: u32) -> Self {
+        BinnedOptions {
+            bins,
+            term: CentroidTermination::default(),
+            axes: Axes::default(),
+        }
+    }
+}
+
 /// `bins` is `k` of the thesis (16 in its tables); values below 2 are treated as 2.
 pub fn build(boxes: &[Aabb], centers: &[Vec3], bins: u32, cfg: &TopDownConfig) -> Bvh {
     build_with_termination(boxes, centers, bins, cfg, CentroidTermination::default())
@@ -86,11 +139,26 @@ pub fn build_with_termination(
     cfg: &TopDownConfig,
     term: CentroidTermination,
 ) -> Bvh {
+    let opts = BinnedOptions {
+        bins,
+        term,
+        axes: Axes::Largest,
+    };
+    build_with_options(boxes, centers, &opts, cfg)
+}
+
+/// The sequential build with every option.
+pub fn build_with_options(
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    opts: &BinnedOptions,
+    cfg: &TopDownConfig,
+) -> Bvh {
     let (mut refs, root) = make_refs(boxes, centers);
-    let mut binner = Binner::new(bins.max(2) as usize);
+    let mut binner = Binner::new(opts.bins.max(2) as usize);
     let s = scene_scale(&root);
     let nodes = build_nodes(refs.len(), root, |r| {
-        split(&mut refs, r, &mut binner, cfg, term, s)
+        split(&mut refs, r, &mut binner, cfg, opts, s)
     });
     Bvh {
         nodes,
@@ -101,11 +169,15 @@ pub fn build_with_termination(
 /// Bin storage, allocated once per build and reused by every node.
 struct Binner {
     k: usize,
+    /// Counts and boxes of the bins, `k` per axis (`axis * k + bin`); the largest-axis build uses
+    /// the first `k`.
     count: Vec<u32>,
     bounds: Vec<BoxA>,
     /// Left-sweep results: half area and count of bins `0..=i`.
     left_area: Vec<f32>,
     left_count: Vec<u32>,
+    /// [`Binner::sweep3`]'s scratch: the non-empty bins of one axis.
+    nonempty: Vec<u32>,
 }
 
 /// The best binned split of a node.
@@ -113,6 +185,8 @@ struct Binner {
 struct BinSplit {
     /// Bins `0..=last_left_bin` go left.
     last_left_bin: usize,
+    /// The axis binned (always the plan's axis with [`Axes::Largest`]).
+    axis: usize,
     /// `SA_L * n_L + SA_R * n_R` (half areas, f64).
     cost: f32,
 }
@@ -133,25 +207,137 @@ struct Bins {
 /// clamped so float rounding can never index past the last bin (NaN maps to bin 0).
 #[inline(always)]
 fn bin_of(c: f32, b: &Bins, k: usize) -> usize {
-    (((c * b.s - b.cb_min) * b.k0) as usize).min(k - 1)
+    // The same bins as `(x as usize).min(k - 1)` for every x (NaN and negatives to 0, the rest
+    // truncated and capped), clamped in float first so that one convert suffices.
+    let f = ((c * b.s - b.cb_min) * b.k0).max(0.0).min((k - 1) as f32);
+    // SAFETY: `f` is in [0, k - 1] (`max` maps NaN to 0), so it fits a u32.
+    unsafe { f.to_int_unchecked::<u32>() as usize }
+}
+
+/// The binning frames of all three axes ([`Axes::All`]): eq. 6 per axis over the scaled centroids
+/// (see [`Bins`]). An axis too thin to bin has `k0 = 0` (every primitive lands in its bin 0) and is
+/// not swept.
+#[derive(Clone, Copy, Debug)]
+struct Bins3 {
+    s: Vec3A,
+    cb_min: Vec3A,
+    k0: Vec3A,
+    /// `k - 1` as f32: the bin indices are clamped to `[0, k - 1]` before the conversion.
+    kmax: f32,
+    /// Which axes are swept.
+    live: [bool; 3],
+}
+
+impl Bins3 {
+    /// Eq. 6 for one axis: exactly the lane `axis` of [`Bins3::bins_of`] (same f32 operations in
+    /// the same order; `f32::max` / `min` pick the non-NaN operand like `maxps` / `minps` with the
+    /// constant second, so a NaN centroid lands in bin 0 both ways; the legacy [`bin_of`] gives
+    /// the same bins for every value).
+    #[inline(always)]
+    fn bin_of_axis(&self, c: &Vec3, axis: usize) -> usize {
+        let f = (((c[axis] * self.s[axis] - self.cb_min[axis]) * self.k0[axis]).max(0.0))
+            .min(self.kmax);
+        // SAFETY: `f` is in [0, k - 1] (max/min above removed NaN), so it fits a u32: one convert
+        // instead of the saturating cast's range fix-ups.
+        unsafe { f.to_int_unchecked::<u32>() as usize }
+    }
+    /// The three bin indices of a centroid at once (SSE: one mul, sub, mul, max, min, convert).
+    #[inline(always)]
+    fn bins_of(&self, c: Vec3A) -> [u32; 4] {
+        let f = ((c * self.s - self.cb_min) * self.k0)
+            .max(Vec3A::ZERO)
+            .min(Vec3A::splat(self.kmax));
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{__m128i, _mm_cvttps_epi32, _mm_storeu_si128};
+            let mut out = [0u32; 4];
+            // SAFETY: SSE2 is part of x86_64; the store writes the 16 bytes of `out`. The values
+            // are in [0, k - 1], so truncation equals the scalar `as usize`.
+            #[allow(unused_unsafe)]
+            unsafe {
+                _mm_storeu_si128(out.as_mut_ptr() as *mut __m128i, _mm_cvttps_epi32(f.into()))
+            };
+            out
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            [f.x as u32, f.y as u32, f.z as u32, 0]
+        }
+    }
 }
 
 impl Binner {
     fn new(k: usize) -> Self {
         Binner {
             k,
-            count: vec![0; k],
-            bounds: vec![BoxA::EMPTY; k],
+            count: vec![0; 3 * k],
+            bounds: vec![BoxA::EMPTY; 3 * k],
             left_area: vec![0.0; k],
             left_count: vec![0; k],
+            nonempty: Vec::with_capacity(k),
         }
+    }
+
+    /// Bins `prims` along all three axes in one pass (issue 19.4: one read of each primitive for
+    /// the three axes instead of three passes).
+    fn bin3(&mut self, prims: &[PrimRef], b: &Bins3) {
+        let k = self.k;
+        self.count.fill(0);
+        self.bounds.fill(BoxA::EMPTY);
+        let (cx, rest) = self.count.split_at_mut(k);
+        let (cy, cz) = rest.split_at_mut(k);
+        let (bx, rest) = self.bounds.split_at_mut(k);
+        let (by, bz) = rest.split_at_mut(k);
+        for p in prims {
+            let i = b.bins_of(Vec3A::from(p.c));
+            let (i0, i1, i2) = (i[0] as usize, i[1] as usize, i[2] as usize);
+            cx[i0] += 1;
+            bx[i0].grow(p.min, p.max);
+            cy[i1] += 1;
+            by[i1].grow(p.min, p.max);
+            cz[i2] += 1;
+            bz[i2].grow(p.min, p.max);
+        }
+    }
+
+    /// The boxes of bins `0..=last` and of the rest on `axis`: the children's exact boxes.
+    fn child_boxes(&self, axis: usize, last: usize) -> (BoxA, BoxA) {
+        let b = &self.bounds[axis * self.k..(axis + 1) * self.k];
+        let union = |bs: &[BoxA]| bs.iter().fold(BoxA::EMPTY, |a, b| a.union(b));
+        (union(&b[..=last]), union(&b[last + 1..]))
+    }
+
+    /// Adds another binner's bins (exact: counts add, boxes take min / max).
+    fn merge(&mut self, o: &Binner) {
+        for (a, b) in self.count.iter_mut().zip(&o.count) {
+            *a += b;
+        }
+        for (a, b) in self.bounds.iter_mut().zip(&o.bounds) {
+            *a = a.union(b);
+        }
+    }
+
+    /// The best plane over the live axes of `b`; ties go to the lower axis, then the lower plane.
+    fn sweep3(&mut self, s: f32, b: &Bins3) -> Option<BinSplit> {
+        let mut best: Option<BinSplit> = None;
+        for axis in 0..3 {
+            if !b.live[axis] {
+                continue;
+            }
+            if let Some(c) = self.sweep_axis(s, axis) {
+                if best.is_none_or(|b| c.cost < b.cost) {
+                    best = Some(c);
+                }
+            }
+        }
+        best
     }
 
     /// Bins `prims` along `axis` (eq. 6) into `self.count` / `self.bounds`.
     fn bin(&mut self, prims: &[PrimRef], axis: usize, bins: &Bins) {
         let k = self.k;
-        self.count.fill(0);
-        self.bounds.fill(BoxA::EMPTY);
+        self.count[..k].fill(0);
+        self.bounds[..k].fill(BoxA::EMPTY);
         for p in prims {
             let b = bin_of(p.c[axis], bins, k);
             self.count[b] += 1;
@@ -165,32 +351,51 @@ impl Binner {
     /// Areas are `BoxA::half_area_scaled` by the build's power of two `s` (f32 like the original,
     /// scale-free: see [`Bins`]).
     fn sweep(&mut self, s: f32) -> Option<BinSplit> {
-        let s = glam::Vec3A::splat(s);
+        self.sweep_axis(s, 0)
+    }
+
+    /// [`Binner::sweep`] over the bins of `axis` (`axis * k ..`), visiting only its non-empty
+    /// bins: the planes between two non-empty bins all give the same children (an empty bin adds
+    /// nothing to a box or a count), hence bit-identical costs, and the lowest of them, right after
+    /// the left group's last non-empty bin, is the one the full sweep's tie rule keeps. So the
+    /// result is the full sweep's, and small nodes (most of them: fewer primitives than bins) skip
+    /// most of it.
+    fn sweep_axis(&mut self, s: f32, axis: usize) -> Option<BinSplit> {
+        let sv = Vec3A::splat(s);
         let k = self.k;
-        // Sweep 1, left to right: accumulate counts and boxes left of each plane.
+        let count = &self.count[axis * k..(axis + 1) * k];
+        let bounds = &self.bounds[axis * k..(axis + 1) * k];
+        let nonempty = &mut self.nonempty;
+        nonempty.clear();
+        nonempty.extend((0..k as u32).filter(|&i| count[i as usize] != 0));
+        let m = nonempty.len();
+        if m < 2 {
+            return None;
+        }
+        // Sweep 1, left to right: boxes and counts up to each non-empty bin.
+        let la = &mut self.left_area[..m - 1];
+        let lc = &mut self.left_count[..m - 1];
         let mut acc = BoxA::EMPTY;
         let mut n = 0;
-        for i in 0..k - 1 {
-            acc = acc.union(&self.bounds[i]);
-            n += self.count[i];
-            self.left_area[i] = acc.half_area_scaled(s);
-            self.left_count[i] = n;
+        for ((a, c), &i) in la.iter_mut().zip(lc.iter_mut()).zip(nonempty.iter()) {
+            acc = acc.union(&bounds[i as usize]);
+            n += count[i as usize];
+            *a = acc.half_area_scaled(sv);
+            *c = n;
         }
-        // Sweep 2, right to left: evaluate the k-1 planes (plane i lies between bins i and i+1).
-        let mut best: Option<BinSplit> = None;
+        // Sweep 2, right to left: the plane after the j-th non-empty bin.
         let mut acc = BoxA::EMPTY;
         let mut n_r = 0;
-        for i in (0..k - 1).rev() {
-            acc = acc.union(&self.bounds[i + 1]);
-            n_r += self.count[i + 1];
-            let n_l = self.left_count[i];
-            if n_l == 0 || n_r == 0 {
-                continue;
-            }
-            let cost = self.left_area[i] * n_l as f32 + acc.half_area_scaled(s) * n_r as f32;
+        let mut best: Option<BinSplit> = None;
+        for j in (0..m - 1).rev() {
+            let i = nonempty[j + 1] as usize;
+            acc = acc.union(&bounds[i]);
+            n_r += count[i];
+            let cost = la[j] * lc[j] as f32 + acc.half_area_scaled(sv) * n_r as f32;
             if best.is_none_or(|b| cost <= b.cost) {
                 best = Some(BinSplit {
-                    last_left_bin: i,
+                    last_left_bin: nonempty[j] as usize,
+                    axis,
                     cost,
                 });
             }
@@ -204,12 +409,24 @@ enum Plan {
     Leaf,
     /// Centroids too close to bin (only with `leaf = 1`): object median on this axis.
     Median(usize),
-    Bin { axis: usize, bins: Bins },
+    Bin {
+        axis: usize,
+        bins: Bins,
+    },
+    /// [`Axes::All`]: bin along every live axis of the frame.
+    Bin3 {
+        bins: Bins3,
+    },
 }
 
 /// The build's power of two (see [`Bins`]): from the scene box, which holds every centroid.
 fn scene_scale(root: &Range) -> f32 {
-    let m = root.bounds.min.abs().max(root.bounds.max.abs()).max_element();
+    let m = root
+        .bounds
+        .min
+        .abs()
+        .max(root.bounds.max.abs())
+        .max_element();
     crate::simd_box::pow2_for_max(m)
 }
 
@@ -219,9 +436,13 @@ fn min_centroid_extent(r: &Range) -> f64 {
     MIN_CENTROID_EXTENT_REL * r.bounds.max_extent_f64()
 }
 
-fn plan(r: &Range, k: usize, cfg: &TopDownConfig, term: CentroidTermination, s: f32) -> Plan {
+fn plan(r: &Range, k: usize, cfg: &TopDownConfig, opts: &BinnedOptions, s: f32) -> Plan {
     if r.len() <= cfg.max_leaf() {
         return Plan::Leaf;
+    }
+    let term = opts.term;
+    if opts.axes == Axes::All {
+        return plan3(r, k, cfg, term, s);
     }
     let min_ext = min_centroid_extent(r);
     let forced = cfg.forced_single();
@@ -244,7 +465,57 @@ fn plan(r: &Range, k: usize, cfg: &TopDownConfig, term: CentroidTermination, s: 
         // leaf = 1 disables early termination; binning cannot separate these centroids.
         return Plan::Median(axis);
     }
-    Plan::Bin { axis, bins: Bins { s, cb_min: cb_min_s, k0 } }
+    Plan::Bin {
+        axis,
+        bins: Bins {
+            s,
+            cb_min: cb_min_s,
+            k0,
+        },
+    }
+}
+
+/// [`plan`] for [`Axes::All`]: the same "too small" test per axis; an axis passing it is live. With
+/// no live axis the node is a leaf (object median when `leaf = 1`), as with the largest axis alone.
+fn plan3(r: &Range, k: usize, cfg: &TopDownConfig, term: CentroidTermination, s: f32) -> Plan {
+    let min_ext = min_centroid_extent(r);
+    let forced = cfg.forced_single();
+    let kf = (k as f64 * (1.0 - BIN_EPSILON)) as f32;
+    let mut live = [false; 3];
+    let mut k0 = [0.0f32; 3];
+    let mut cb_min = [0.0f32; 3];
+    let mut any_tiny = false;
+    for a in 0..3 {
+        let extent = r.cbounds.max[a] as f64 - r.cbounds.min[a] as f64;
+        cb_min[a] = r.cbounds.min[a] * s;
+        let k0a = kf / (r.cbounds.max[a] * s - cb_min[a]);
+        // As in `plan`: `>=` is false for NaN extents; a zero extent never bins.
+        let ok = extent >= min_ext && extent > 0.0 && k0a.is_finite();
+        live[a] = ok;
+        any_tiny |= !(extent >= min_ext && extent > 0.0);
+        if ok {
+            k0[a] = k0a;
+        } else {
+            cb_min[a] = 0.0;
+        }
+    }
+    let none = !live.iter().any(|&l| l);
+    let stop = none || (term == CentroidTermination::AnyAxis && any_tiny);
+    if stop && !forced {
+        return Plan::Leaf;
+    }
+    if none {
+        return Plan::Median(r.cbounds.largest_axis());
+    }
+    Plan::Bin3 {
+        bins: Bins3 {
+            s: Vec3A::splat(s),
+            cb_min: Vec3A::from_array(cb_min),
+            k0: Vec3A::from_array(k0),
+            kmax: (k - 1) as f32,
+            live,
+        },
+    }
 }
 
 /// After binning and sweeping: leaf, object-median fallback, or the split to partition by.
@@ -277,14 +548,24 @@ fn split(
     r: &Range,
     binner: &mut Binner,
     cfg: &TopDownConfig,
-    term: CentroidTermination,
+    opts: &BinnedOptions,
     s: f32,
 ) -> Option<(Range, Range)> {
     let k = binner.k;
-    let (axis, bins) = match plan(r, k, cfg, term, s) {
+    let (axis, bins) = match plan(r, k, cfg, opts, s) {
         Plan::Leaf => return None,
         Plan::Median(axis) => return Some(object_median(refs, r, axis)),
         Plan::Bin { axis, bins } => (axis, bins),
+        Plan::Bin3 { bins } => {
+            binner.bin3(&refs[r.begin..r.end], &bins);
+            let best = binner.sweep3(s, &bins);
+            let axis = best.map_or(r.cbounds.largest_axis(), |b| b.axis);
+            return match decide(best, r, axis, cfg, s) {
+                Decision::Leaf => None,
+                Decision::Median(axis) => Some(object_median(refs, r, axis)),
+                Decision::Split(best) => Some(partition3(refs, r, &bins, &best, binner)),
+            };
+        }
     };
     binner.bin(&refs[r.begin..r.end], axis, &bins);
     match decide(binner.sweep(s), r, axis, cfg, s) {
@@ -295,11 +576,32 @@ fn split(
             // the same float expression as in `bin`, so the sides match the counts the SAH was
             // computed from.
             let last = best.last_left_bin;
-            let (left, right) = partition(refs, r, |p| bin_of(p.c[axis], &bins, k) <= last);
+            // The children's boxes are the unions of their bins' boxes (exact: min / max of the
+            // same boxes), so the loop gathers only the centroid bounds.
+            let (lb, rb) = binner.child_boxes(0, last);
+            let (left, right) =
+                partition_known_bounds(refs, r, lb, rb, |p| bin_of(p.c[axis], &bins, k) <= last);
             debug_assert!(left.len() > 0 && right.len() > 0);
             Some((left, right))
         }
     }
+}
+
+/// The partition of an [`Axes::All`] split: each primitive's bin on the split axis, by the same
+/// float expression as in [`Binner::bin3`].
+fn partition3(
+    refs: &mut [PrimRef],
+    r: &Range,
+    bins: &Bins3,
+    best: &BinSplit,
+    binner: &Binner,
+) -> (Range, Range) {
+    let (axis, last) = (best.axis, best.last_left_bin);
+    let (lb, rb) = binner.child_boxes(axis, last);
+    let (left, right) =
+        partition_known_bounds(refs, r, lb, rb, |p| bins.bin_of_axis(&p.c, axis) <= last);
+    debug_assert!(left.len() > 0 && right.len() > 0);
+    (left, right)
 }
 
 /// Speed knobs of [`build_parallel_tuned`]. The tree never depends on them (tests set them tiny to
@@ -339,12 +641,27 @@ pub fn build_parallel(
     cfg: &TopDownConfig,
     term: CentroidTermination,
 ) -> Bvh {
+    let opts = BinnedOptions {
+        bins,
+        term,
+        axes: Axes::Largest,
+    };
+    build_parallel_with_options(boxes, centers, &opts, cfg)
+}
+
+/// [`build_parallel`] with every option: the tree of [`build_with_options`] at any thread count.
+pub fn build_parallel_with_options(
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    opts: &BinnedOptions,
+    cfg: &TopDownConfig,
+) -> Bvh {
     let threads = rayon::current_num_threads();
     if threads <= 1 {
-        return build_with_termination(boxes, centers, bins, cfg, term);
+        return build_with_options(boxes, centers, opts, cfg);
     }
     let tuning = ParallelTuning::for_size(boxes.len(), threads);
-    build_parallel_tuned(boxes, centers, bins, cfg, term, tuning)
+    build_parallel_options_tuned(boxes, centers, opts, cfg, tuning)
 }
 
 /// [`build_parallel`] with explicit speed knobs (always takes the parallel code path).
@@ -356,54 +673,81 @@ pub fn build_parallel_tuned(
     term: CentroidTermination,
     tuning: ParallelTuning,
 ) -> Bvh {
+    let opts = BinnedOptions {
+        bins,
+        term,
+        axes: Axes::Largest,
+    };
+    build_parallel_options_tuned(boxes, centers, &opts, cfg, tuning)
+}
+
+/// [`build_parallel_with_options`] with explicit speed knobs (always the parallel code path).
+pub fn build_parallel_options_tuned(
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    opts: &BinnedOptions,
+    cfg: &TopDownConfig,
+    tuning: ParallelTuning,
+) -> Bvh {
     use rayon::prelude::*;
     let (mut refs, root) = make_refs_parallel(boxes, centers);
-    let k = bins.max(2) as usize;
+    let k = opts.bins.max(2) as usize;
     let threads = rayon::current_num_threads();
     // From the whole scene (the vertical tasks see only their slice): the same bins as sequential.
     let s = scene_scale(&root);
     // Horizontal phase: a large node's binning and partition spread over the threads.
     let horizontal =
         |refs: &mut [PrimRef], flags: &mut [bool], r: &Range| -> Option<(Range, Range)> {
-            let (axis, bins) = match plan(r, k, cfg, term, s) {
-                Plan::Leaf => return None,
-                Plan::Median(axis) => return Some(object_median(refs, r, axis)),
-                Plan::Bin { axis, bins } => (axis, bins),
-            };
             let chunk = tuning.chunk(r.len(), threads);
-            // Per-chunk bins merged afterwards: counts add and boxes take min/max, both exact, so
-            // the merged bins equal the sequential ones whatever the chunking.
-            let (count, bounds) = refs[r.begin..r.end]
-                .par_chunks(chunk)
-                .map(|ps| {
-                    let mut count = vec![0u32; k];
-                    let mut bounds = vec![BoxA::EMPTY; k];
-                    for p in ps {
-                        let b = bin_of(p.c[axis], &bins, k);
-                        count[b] += 1;
-                        bounds[b].grow(p.min, p.max);
+            let (best, axis, is_left): (_, _, Box<dyn Fn(&PrimRef, usize) -> bool + Sync>) =
+                match plan(r, k, cfg, opts, s) {
+                    Plan::Leaf => return None,
+                    Plan::Median(axis) => return Some(object_median(refs, r, axis)),
+                    Plan::Bin { axis, bins } => {
+                        // Per-chunk bins merged afterwards: counts add and boxes take min/max,
+                        // both exact, so the merged bins equal the sequential ones whatever the
+                        // chunking.
+                        let mut binner = refs[r.begin..r.end]
+                            .par_chunks(chunk)
+                            .map(|ps| {
+                                let mut b = Binner::new(k);
+                                b.bin(ps, axis, &bins);
+                                b
+                            })
+                            .reduce_with(|mut a, b| {
+                                a.merge(&b);
+                                a
+                            })?;
+                        let best = binner.sweep(s);
+                        let f = move |p: &PrimRef, last: usize| bin_of(p.c[axis], &bins, k) <= last;
+                        (best, axis, Box::new(f))
                     }
-                    (count, bounds)
-                })
-                .reduce_with(|mut a, b| {
-                    for i in 0..k {
-                        a.0[i] += b.0[i];
-                        a.1[i] = a.1[i].union(&b.1[i]);
+                    Plan::Bin3 { bins } => {
+                        let mut binner = refs[r.begin..r.end]
+                            .par_chunks(chunk)
+                            .map(|ps| {
+                                let mut b = Binner::new(k);
+                                b.bin3(ps, &bins);
+                                b
+                            })
+                            .reduce_with(|mut a, b| {
+                                a.merge(&b);
+                                a
+                            })?;
+                        let best = binner.sweep3(s, &bins);
+                        let axis = best.map_or(r.cbounds.largest_axis(), |b| b.axis);
+                        let f =
+                            move |p: &PrimRef, last: usize| bins.bin_of_axis(&p.c, axis) <= last;
+                        (best, axis, Box::new(f))
                     }
-                    a
-                })?;
-            let mut binner = Binner::new(k);
-            binner.count.copy_from_slice(&count);
-            binner.bounds.copy_from_slice(&bounds);
-            match decide(binner.sweep(s), r, axis, cfg, s) {
+                };
+            match decide(best, r, axis, cfg, s) {
                 Decision::Leaf => None,
                 Decision::Median(axis) => Some(object_median(refs, r, axis)),
                 Decision::Split(best) => {
                     let last = best.last_left_bin;
                     let f = &mut flags[r.begin..r.end];
-                    let (left, right) = partition_parallel(refs, r, f, chunk, |p| {
-                        bin_of(p.c[axis], &bins, k) <= last
-                    });
+                    let (left, right) = partition_parallel(refs, r, f, chunk, |p| is_left(p, last));
                     debug_assert!(left.len() > 0 && right.len() > 0);
                     Some((left, right))
                 }
@@ -412,7 +756,7 @@ pub fn build_parallel_tuned(
     // Vertical phase: each small subtree is the sequential builder on its own slice.
     let vertical = |refs: &mut [PrimRef], r: &Range| -> Vec<Node> {
         let mut binner = Binner::new(k);
-        build_nodes(r.len(), *r, |r| split(refs, r, &mut binner, cfg, term, s))
+        build_nodes(r.len(), *r, |r| split(refs, r, &mut binner, cfg, opts, s))
     };
     let nodes = build_nodes_parallel(&mut refs, root, tuning.vertical_min, horizontal, vertical);
     Bvh {

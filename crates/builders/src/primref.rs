@@ -83,6 +83,56 @@ pub(crate) fn partition(
     r.split(mid, (lb, lcb), (rb, rcb))
 }
 
+/// [`partition`] when the children's boxes are already known (the binned SAH has them from its
+/// bins, exactly: unions of the same boxes): gathers only the centroid bounds, half the min/max
+/// work of the loop. `lb` / `rb` are the left and right boxes.
+#[inline]
+pub(crate) fn partition_known_bounds(
+    refs: &mut [PrimRef],
+    r: &Range,
+    lb: BoxA,
+    rb: BoxA,
+    is_left: impl Fn(&PrimRef) -> bool,
+) -> (Range, Range) {
+    let s = &mut refs[r.begin..r.end];
+    let (mut lcb, mut rcb) = (BoxA::EMPTY, BoxA::EMPTY);
+    let mut i = 0;
+    let mut j = s.len();
+    loop {
+        while i < j && is_left(&s[i]) {
+            lcb.grow_point(s[i].c.into());
+            i += 1;
+        }
+        while i < j && !is_left(&s[j - 1]) {
+            rcb.grow_point(s[j - 1].c.into());
+            j -= 1;
+        }
+        if i >= j {
+            break;
+        }
+        s.swap(i, j - 1);
+        lcb.grow_point(s[i].c.into());
+        rcb.grow_point(s[j - 1].c.into());
+        i += 1;
+        j -= 1;
+    }
+    let mid = r.begin + i;
+    (
+        Range {
+            begin: r.begin,
+            end: mid,
+            bounds: lb,
+            cbounds: lcb,
+        },
+        Range {
+            begin: mid,
+            end: r.end,
+            bounds: rb,
+            cbounds: rcb,
+        },
+    )
+}
+
 /// Object-median split on `axis`: the lower half by (centre, index) goes left. The index tie-break
 /// makes it deterministic and it always separates a range of >= 2 primitives, even when all centres
 /// coincide, so it is the builders' fallback that guarantees termination.

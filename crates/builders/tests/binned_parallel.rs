@@ -1,7 +1,7 @@
 //! The parallel binned SAH (thesis 3.1.2) gives byte-identical trees to the sequential binned SAH
 //! for every parameter, speed knob and thread count, and they are valid.
 mod common;
-use bvhlab_builders::binned_sah::{self, CentroidTermination, ParallelTuning};
+use bvhlab_builders::binned_sah::{self, Axes, BinnedOptions, CentroidTermination, ParallelTuning};
 use bvhlab_builders::TopDownConfig;
 use bvhlab_bvh::{validate, Aabb, Vec3};
 use common::*;
@@ -86,26 +86,36 @@ fn parallel_binned_is_byte_identical_to_sequential() {
                 ..Default::default()
             };
             for bins in [2, 16, 33] {
-                for term in [CentroidTermination::SplitAxis, CentroidTermination::AnyAxis] {
-                    let seq =
-                        binned_sah::build_with_termination(&boxes, &centers, bins, &cfg, term);
+                for (term, axes) in [
+                    (CentroidTermination::SplitAxis, Axes::Largest),
+                    (CentroidTermination::AnyAxis, Axes::Largest),
+                    (CentroidTermination::SplitAxis, Axes::All),
+                    (CentroidTermination::AnyAxis, Axes::All),
+                ] {
+                    let opts = BinnedOptions { bins, term, axes };
+                    let seq = binned_sah::build_with_options(&boxes, &centers, &opts, &cfg);
+                    if axes == Axes::Largest {
+                        let legacy =
+                            binned_sah::build_with_termination(&boxes, &centers, bins, &cfg, term);
+                        assert!(legacy.canonical_bytes() == seq.canonical_bytes());
+                    }
                     if let Err(e) = validate(&seq, &boxes) {
                         panic!("sequential on {scene}: {e}");
                     }
                     let want = seq.canonical_bytes();
                     for (pi, p) in pools.iter().enumerate() {
                         let what = format!(
-                            "{scene} leaf {leaf} bins {bins} {term:?} threads {}",
+                            "{scene} leaf {leaf} bins {bins} {term:?} {axes:?} threads {}",
                             pi + 1
                         );
                         let par = p.install(|| {
-                            binned_sah::build_parallel(&boxes, &centers, bins, &cfg, term)
+                            binned_sah::build_parallel_with_options(&boxes, &centers, &opts, &cfg)
                         });
                         assert!(par.canonical_bytes() == want, "build_parallel: {what}");
                         for t in TUNINGS {
                             let par = p.install(|| {
-                                binned_sah::build_parallel_tuned(
-                                    &boxes, &centers, bins, &cfg, term, t,
+                                binned_sah::build_parallel_options_tuned(
+                                    &boxes, &centers, &opts, &cfg, t,
                                 )
                             });
                             if let Err(e) = validate(&par, &boxes) {

@@ -35,5 +35,11 @@ proptest! {
         }
         let bvh = bvhlab_builders::binned_sah::build(&boxes, &centers, bins, &cfg);
         prop_assert!(validate(&bvh, &boxes).is_ok(), "binned {} bins", bins);
+        let opts = bvhlab_builders::binned_sah::BinnedOptions {
+            axes: bvhlab_builders::binned_sah::Axes::All,
+            ..bvhlab_builders::binned_sah::BinnedOptions::new(bins)
+        };
+        let bvh = bvhlab_builders::binned_sah::build_with_options(&boxes, &centers, &opts, &cfg);
+        prop_assert!(validate(&bvh, &boxes).is_ok(), "binned axes=all {} bins", bins);
     }
 }

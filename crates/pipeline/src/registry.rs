@@ -500,7 +500,7 @@ pub(crate) mod tests {
         assert_eq!(a.key_params(), b.key_params());
         assert_eq!(
             crate::key::params_string(&a.params),
-            "bins=16,centroid_stop=split-axis,leaf=2"
+            "axes=largest,bins=16,centroid_stop=split-axis,leaf=2"
         );
     }
 

@@ -9,9 +9,18 @@ fn binned16(b: &[Aabb], c: &[Vec3], cfg: &TopDownConfig) -> Bvh {
     binned_sah::build(b, c, 16, cfg)
 }
 
-pub const BUILDERS: [(&str, BuildFn); 3] = [
+fn binned16_all(b: &[Aabb], c: &[Vec3], cfg: &TopDownConfig) -> Bvh {
+    let opts = binned_sah::BinnedOptions {
+        axes: binned_sah::Axes::All,
+        ..binned_sah::BinnedOptions::new(16)
+    };
+    binned_sah::build_with_options(b, c, &opts, cfg)
+}
+
+pub const BUILDERS: [(&str, BuildFn); 4] = [
     ("spatial-median", spatial_median::build),
     ("binned-sah", binned16),
+    ("binned-sah axes=all", binned16_all),
     ("sweep-sah", sweep_sah::build),
 ];
 

@@ -53,7 +53,7 @@ pub fn standard() -> Vec<BuilderInfo> {
         top_down(&spatial_median::METHOD, |b, c, _, r| spatial_median::build_in(b, c, &r.config(), r.get("frame"))),
         top_down(&sweep_sah::METHOD, |b, c, _, r| sweep_sah::build(b, c, &r.config())),
         // Parallel over the current rayon pool (thesis 3.1.2): the same tree bytes at any thread count.
-        top_down(&binned_sah::METHOD, |b, c, _, r| binned_sah::build_parallel(b, c, r.get("bins"), &r.config(), r.get("centroid_stop"))),
+        top_down(&binned_sah::METHOD, |b, c, _, r| binned_sah::build_parallel_with_options(b, c, &binned_sah::BinnedOptions { bins: r.get("bins"), term: r.get("centroid_stop"), axes: r.get("axes") }, &r.config())),
         top_down(&bonsai::METHOD, |b, c, _, r| bonsai::build(b, c, &bonsai::BonsaiConfig::from_params(&r.params, r.config()))),
         top_down(&incremental::METHOD, |b, _, _, r| incremental::build(b, &incremental::IncConfig::from_params(&r.params, r.cost))),
         // Stich et al. 2009: clips triangles, so it takes them instead of boxes; references repeat.

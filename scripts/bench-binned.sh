@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# issue 19.4: binned SAH build time and SAH cost against tinybvh's BuildAVX (../shared/tools/tinybvh-anchor),
+# 1 thread, alternated in one run on the same machine (ours, anchor, ours, anchor, ...).
+#
+# Usage: scripts/bench-binned.sh [runs=5] [rounds=3] [VARIANTS] [SCENES...]
+#   VARIANTS: comma-separated build_bench names (default: the thesis configuration `binned-sah`
+#   and the all-axes ones `binned-sah:axes=all:bins=8`, `binned-sah:axes=all`).
+#   SCENES: default stanford_dragon and conference from ../shared/scenes.
+# Each round runs every variant `runs` times (its median) and then the anchor `runs` times (its medians);
+# the table shows the median over the rounds, the SAH cost, and the ratio to BuildAVX with the goal
+# (time <= 1.00x at SAH <= BuildAVX's + 1 %). `uptime` is printed before and after: others' load skews
+# both sides, which is why only same-run ratios count.
+set -euo pipefail
+repo=$(cd "$(dirname "$0")/.." && pwd)
+shared="$repo/../shared"
+anchor="$shared/tools/tinybvh-anchor"
+export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$repo/target}
+bench="$CARGO_TARGET_DIR/release/examples/build_bench"
+runs=${1:-5}
+rounds=${2:-3}
+variants=${3:-binned-sah,binned-sah:axes=all:bins=8,binned-sah:axes=all}
+shift $(( $# < 3 ? $# : 3 ))
+scenes=("$@")
+[[ ${#scenes[@]} -gt 0 ]] || scenes=("$shared/scenes/stanford_dragon.obj.gz" "$shared/scenes/conference.obj.gz")
+[[ -x "$anchor" ]] || { echo "missing $anchor" >&2; exit 1; }
+# NO_BUILD=1 uses the build_bench binary as it is (e.g. while another cargo command holds the target dir).
+[[ -n "${NO_BUILD:-}" ]] || cargo build --quiet --release -p bvhlab-builders --example build_bench --manifest-path "$repo/Cargo.toml"
+
+field() { sed -n "s/.*\"$2\":\([-0-9.eE+]*\).*/\1/p" <<<"$1"; }
+part() { sed -n "s/.*\"$2\":{\([^}]*\)}.*/\1/p" <<<"$1"; }
+med() { sort -g | awk '{a[NR]=$1} END {if (NR == 0) print ""; else if (NR % 2) print a[(NR+1)/2]; else printf "%.2f\n", (a[NR/2]+a[NR/2+1])/2}'; }
+
+echo "load before: $(uptime)"
+for scene in "${scenes[@]}"; do
+  declare -A ms=() sah=()
+  avx_ms=() avx_sah=""
+  for ((r = 0; r < rounds; r++)); do
+    out=$("$bench" "$scene" "$runs" 1 "$variants")
+    while IFS= read -r line; do
+      [[ -z "$line" ]] && continue
+      name=$(sed -n 's/.*"builder":"\([^"]*\)".*/\1/p' <<<"$line")
+      ms[$name]="${ms[$name]:-} $(field "$line" build_ms_median)"
+      sah[$name]=$(field "$line" sah_cost)
+    done <<<"$out"
+    a=$("$anchor" "$scene" "$runs")
+    avx=$(part "$a" binned_sah_avx)
+    avx_ms+=("$(field "$avx" build_ms_median)")
+    avx_sah=$(field "$avx" sah_cost)
+  done
+  t_avx=$(printf '%s\n' "${avx_ms[@]}" | med)
+  echo
+  echo "$(basename "$scene"), 1 thread, $rounds rounds x $runs runs; tinybvh BuildAVX ${t_avx} ms (rounds: ${avx_ms[*]}), SAH $avx_sah"
+  printf '%-32s %9s %-26s %9s %8s %9s %s\n' variant ms rounds sah_cost ratio sah_vs verdict
+  IFS=, read -ra names <<<"$variants"
+  for name in "${names[@]}"; do
+    t=$(tr ' ' '\n' <<<"${ms[$name]}" | grep . | med)
+    ratio=$(awk -v a="$t" -v b="$t_avx" 'BEGIN { printf "%.2f", a / b }')
+    rel=$(awk -v a="${sah[$name]}" -v b="$avx_sah" 'BEGIN { printf "%+.1f%%", (a / b - 1) * 100 }')
+    ok=$(awk -v r="$ratio" -v a="${sah[$name]}" -v b="$avx_sah" 'BEGIN { print (r <= 1.0 && a <= b * 1.01) ? "PASS" : "MISS" }')
+    printf '%-32s %9s %-26s %9s %8s %9s %s\n' "$name" "$t" "$(echo ${ms[$name]})" "${sah[$name]}" "${ratio}x" "$rel" "$ok"
+  done
+  unset ms sah
+done
+echo
+echo "load after: $(uptime)"
