@@ -186,7 +186,8 @@ mod tests {
             )
             .chain(r.layouts.iter().map(|m| (m.name, m.reference, &m.params)))
             .collect();
-        assert_eq!(all.len(), 8 + 3 + 3 + 7);
+        // builders: 9 of bvhlab (with sbvh) + 4 peers; encoders; optimizers; layouts (with bvh4, bvh8).
+        assert_eq!(all.len(), 9 + 4 + 3 + 3 + 7);
         for (name, reference, params) in all {
             assert!(!reference.is_empty(), "{name}");
             for p in params.iter() {
