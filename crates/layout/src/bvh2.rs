@@ -1,7 +1,7 @@
 //! The flat 32-byte-node BVH (the foundation's layout; Kilian 5.1's "basic BVH" is the same 256 bits
 //! per node): the baseline every compressed layout is compared with.
 use crate::Memory;
-use bvhlab_bvh::{Bvh, CostParams, Node};
+use bvhlab_bvh::{Bvh, CostParams, Node, Refs};
 use bvhlab_geom::Triangle;
 use bvhlab_params::Method;
 use bvhlab_trace::{Ray, TraceStats};
@@ -45,7 +45,11 @@ impl Bvh2 {
     }
 
     pub fn validate(&self, tris: &[Triangle]) -> Result<(), String> {
+        self.validate_refs(tris, Refs::Unique)
+    }
+
+    pub fn validate_refs(&self, tris: &[Triangle], refs: Refs) -> Result<(), String> {
         let boxes: Vec<_> = tris.iter().map(|t| t.bounds()).collect();
-        bvhlab_bvh::validate(&self.bvh, &boxes)
+        bvhlab_bvh::validate_refs(&self.bvh, &boxes, refs)
     }
 }

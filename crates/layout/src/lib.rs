@@ -17,7 +17,7 @@ pub mod octree;
 pub mod octree_1bit;
 pub mod qbvh_chunks;
 
-use bvhlab_bvh::{Bvh, CostParams};
+use bvhlab_bvh::{Bvh, CostParams, Refs};
 use bvhlab_geom::Triangle;
 use bvhlab_params::{fill, unknown, Method, Spelling};
 use bvhlab_trace::{Ray, TraceStats};
@@ -245,9 +245,17 @@ impl Layout {
     /// boxes contain their children and triangles; octrees reference every triangle at least once
     /// and only from leaves whose implicit box overlaps the triangle's box.
     pub fn validate(&self, tris: &[Triangle]) -> Result<(), String> {
+        self.validate_refs(tris, Refs::Unique)
+    }
+
+    /// [`Layout::validate`] for a BVH built with `refs`: with `Refs::Split` (SBVH, Stich et al.
+    /// 2009) the BVH layouts may reference a triangle from several leaves whose boxes each hold a
+    /// clipped part of it (`bvhlab_bvh::validate_split`'s rules); octrees are built from the scene
+    /// and check their own rules either way.
+    pub fn validate_refs(&self, tris: &[Triangle], refs: Refs) -> Result<(), String> {
         match self {
-            Layout::Bvh2(l) => l.validate(tris),
-            Layout::QbvhChunks(l) => l.validate(tris),
+            Layout::Bvh2(l) => l.validate_refs(tris, refs),
+            Layout::QbvhChunks(l) => l.validate_refs(tris, refs),
             Layout::Octree(l) => l.validate(tris),
             Layout::Octree1Bit(l) => l.validate(tris),
         }

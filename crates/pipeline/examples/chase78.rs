@@ -16,7 +16,7 @@
 //! measure=area,seed=3/kensler-hc/collapse` = 78.2824 (same at 1 thread; seeds 1..6: 78.28-78.40).
 //! The start tree's leaf=2 pairs matter most: the same chain from sweep-sah leaf=1 ends at 79.26,
 //! and from the raw ploc/aac/lbvh/incremental trees at 79.0-80.1. Below 78 was not reached.
-use bvhlab_bvh::{collapse::collapse, metrics, validate, Bvh, CostParams};
+use bvhlab_bvh::{collapse::collapse, metrics, validate_refs, Bvh, CostParams};
 use bvhlab_pipeline::registry::Registry;
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -65,7 +65,10 @@ fn main() {
             codes: &e.codes,
             code_bits: e.code_bits,
         });
-        let mut bvh: Bvh = (info.run)(&boxes, &centers, codes.as_ref(), &ch.build);
+        let mut bvh: Bvh = match info.triangles {
+            Some(run) => run(&scene.triangles, &ch.build),
+            None => (info.run)(&boxes, &centers, codes.as_ref(), &ch.build),
+        };
         let build_cost = metrics(&bvh, ch.build.cost).sah_cost;
         println!(
             "  {chain} | build {builder}: {build_cost:.3} ({:.1}s)",
@@ -112,7 +115,7 @@ fn main() {
         }
         let fin = collapse(&bvh, ch.build.cost);
         let fc = metrics(&fin, ch.build.cost).sah_cost;
-        let ok = match validate(&fin, &boxes) {
+        let ok = match validate_refs(&fin, &boxes, info.refs) {
             Ok(()) => "valid".to_string(),
             Err(e) => format!("INVALID: {e}"),
         };

@@ -163,7 +163,7 @@ fn test_runner(root: &Path, versions: Versions) -> Runner {
         load: test_load,
         canonical_gen: |g| Ok(g.to_string()),
         metrics: test_metrics,
-        validate: |_, _| Ok(()),
+        validate: |_, _, _| Ok(()),
         // A real change, so compact artifacts differ from build artifacts.
         collapse: |b, _| {
             let mut b = b.clone();

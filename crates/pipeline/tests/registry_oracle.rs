@@ -4,7 +4,7 @@
 //! Builders that take codes run with every encoder and the encoder options (bits, bounds, grid),
 //! including the far-outlier scenes where quantization fails (Riemersma 2024).
 use bvhlab_builders::SortedCodes;
-use bvhlab_bvh::{collapse::collapse, validate, Bvh, CostParams};
+use bvhlab_bvh::{collapse::collapse, validate_refs, Bvh, CostParams, Refs};
 use bvhlab_geom::{load_scene, Scene};
 use bvhlab_pipeline::registry::Registry;
 use bvhlab_trace::{brute_force, random_rays, trace, Ray};
@@ -35,13 +35,14 @@ const ENCODERS: &[(&str, &[(&str, &str)])] = &[
 
 fn check(
     ctx: &str,
+    refs: Refs,
     bvh: &Bvh,
     scene: &Scene,
     boxes: &[bvhlab_bvh::Aabb],
     rays: &[Ray],
     want: &[bvhlab_trace::Hit],
 ) {
-    validate(bvh, boxes).unwrap_or_else(|e| panic!("{ctx}: invalid: {e}"));
+    validate_refs(bvh, boxes, refs).unwrap_or_else(|e| panic!("{ctx}: invalid: {e}"));
     let got = trace(bvh, &scene.triangles, rays);
     for (i, (g, w)) in got.hits.iter().zip(want).enumerate() {
         let same = g.prim == w.prim
@@ -111,13 +112,14 @@ fn every_registered_builder_matches_brute_force() {
                         raw(&[])
                     };
                     let resolved = reg.resolve(info.name, &params, cost).unwrap();
-                    let built = info.construct(&boxes, &centers, None, &resolved);
+                    let built = info.construct(&scene.triangles, &boxes, &centers, None, &resolved);
                     for (what, bvh) in [
                         ("built", built.clone()),
                         ("collapsed", collapse(&built, cost)),
                     ] {
                         check(
                             &format!("{spec} {} leaf={leaf} {what}", info.name),
+                            info.refs,
                             &bvh,
                             &scene,
                             &boxes,
@@ -149,15 +151,17 @@ fn every_registered_builder_matches_brute_force() {
                 let raw_tree = (info.run)(&boxes, &centers, Some(&codes), &resolved);
                 check(
                     &format!("{ctx} raw"),
+                    Refs::Unique,
                     &raw_tree,
                     &scene,
                     &boxes,
                     &rays,
                     &want,
                 );
-                let built = info.construct(&boxes, &centers, Some(&codes), &resolved);
+                let built = info.construct(&scene.triangles, &boxes, &centers, Some(&codes), &resolved);
                 check(
                     &format!("{ctx} built"),
+                    Refs::Unique,
                     &built,
                     &scene,
                     &boxes,
@@ -188,12 +192,13 @@ fn every_registered_optimizer_matches_brute_force() {
             ("spatial-median", "1"),
             ("sweep-sah", "1"),
             ("binned-sah", "4"),
+            // Repeated references (Stich et al. 2009) through every optimizer and the compaction.
+            ("sbvh", "1"),
         ] {
             let r = reg.resolve(builder, &raw(&[("leaf", leaf)]), cost).unwrap();
-            let built = reg
-                .get(builder)
-                .unwrap()
-                .construct(&boxes, &centers, None, &r);
+            let info = reg.get(builder).unwrap();
+            let refs = info.refs;
+            let built = info.construct(&scene.triangles, &boxes, &centers, None, &r);
             let before = bvhlab_bvh::metrics(&built, cost).sah_cost;
             for info in &reg.optimizers {
                 // Bounded so the suite stays fast; convergence is the optimizers' own tests' job.
@@ -202,9 +207,10 @@ fn every_registered_optimizer_matches_brute_force() {
                     .unwrap();
                 let out = (info.run)(&built, &o);
                 let ctx = format!("{spec} {builder} leaf={leaf} {}", reg.optimizer_label(&o));
-                check(&ctx, &out.bvh, &scene, &boxes, &rays, &want);
+                check(&ctx, refs, &out.bvh, &scene, &boxes, &rays, &want);
                 check(
                     &format!("{ctx} collapsed"),
+                    refs,
                     &collapse(&out.bvh, cost),
                     &scene,
                     &boxes,

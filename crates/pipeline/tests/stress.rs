@@ -115,7 +115,7 @@ fn deep_staircase_on_a_small_stack() {
         let (boxes, centers) = scene.boxes_and_centers();
         let cost = bvhlab_bvh::CostParams::default();
         let r = reg.resolve("incremental", &Default::default(), cost).unwrap();
-        let bvh = reg.get("incremental").unwrap().construct(&boxes, &centers, None, &r);
+        let bvh = reg.get("incremental").unwrap().construct(&scene.triangles, &boxes, &centers, None, &r);
         let d = depth(&bvh);
         eprintln!("incremental on staircase:n=20000: depth {d}");
         assert!(d > 2000, "depth {d}");

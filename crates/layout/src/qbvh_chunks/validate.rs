@@ -2,7 +2,7 @@
 
 use super::quant::{Grid, KeyReader, Packed};
 use super::{chunk_box, header, rank_bit, Frame, QbvhChunks, HEADER_WORDS};
-use bvhlab_bvh::CostParams;
+use bvhlab_bvh::{CostParams, Refs};
 use bvhlab_geom::{Aabb, Triangle};
 
 impl QbvhChunks {
@@ -152,6 +152,14 @@ impl QbvhChunks {
     }
 
     pub fn validate(&self, tris: &[Triangle]) -> Result<(), String> {
+        self.validate_refs(tris, Refs::Unique)
+    }
+
+    /// With `Refs::Split` (SBVH) a triangle may be referenced from several leaves (at most once per
+    /// leaf); each such leaf's dequantized box must overlap the triangle's box, the parts together
+    /// cover it, and every box contain those parts below it (instead of whole triangle boxes).
+    pub fn validate_refs(&self, tris: &[Triangle], refs: Refs) -> Result<(), String> {
+        let split = refs == Refs::Split;
         if self.offsets.first() != Some(&0) || self.offsets.windows(2).any(|w| w[0] > w[1]) {
             return Err("qbvh_chunks: offset list does not start at 0 or decreases".into());
         }
@@ -163,7 +171,7 @@ impl QbvhChunks {
             let s = seen
                 .get_mut(p as usize)
                 .ok_or_else(|| format!("qbvh_chunks: primitive {p} out of range"))?;
-            if std::mem::replace(s, true) {
+            if std::mem::replace(s, true) && !split {
                 return Err(format!("qbvh_chunks: triangle {p} referenced twice"));
             }
         }
@@ -175,17 +183,40 @@ impl QbvhChunks {
         let mut parent = Vec::new();
         let mut boxes = Vec::new();
         let mut below = Vec::new();
+        let (mut covered, mut last_leaf, mut bad) =
+            (vec![Aabb::EMPTY; if split { tris.len() } else { 0 }], vec![None; if split { tris.len() } else { 0 }], None);
         self.walk(|p, b, range| {
             parent.push(p);
             boxes.push(b);
             let mut u = Aabb::EMPTY;
             if let Some((a, e)) = range {
                 for &t in &self.prims[a..e] {
-                    u.grow(&tris[t as usize].bounds());
+                    let tb = tris[t as usize].bounds();
+                    if split {
+                        let part = Aabb { min: b.min.max(tb.min), max: b.max.min(tb.max) };
+                        if part.is_empty() || last_leaf[t as usize] == Some(a) {
+                            bad.get_or_insert(t);
+                        }
+                        last_leaf[t as usize] = Some(a);
+                        covered[t as usize].grow(&part);
+                        u.grow(&part);
+                    } else {
+                        u.grow(&tb);
+                    }
                 }
             }
             below.push(u);
         })?;
+        if let Some(t) = bad {
+            return Err(format!(
+                "qbvh_chunks: triangle {t} referenced twice by one leaf or from a leaf not overlapping it"
+            ));
+        }
+        if split {
+            if let Some(t) = (0..tris.len()).find(|&t| !covered[t].contains(&tris[t].bounds())) {
+                return Err(format!("qbvh_chunks: the leaves referencing triangle {t} do not cover it"));
+            }
+        }
         for id in (0..boxes.len()).rev() {
             let u = below[id];
             if !u.is_empty() && !boxes[id].contains(&u) {

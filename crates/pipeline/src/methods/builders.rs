@@ -3,18 +3,30 @@
 use super::{MethodInfo, MethodKind};
 use crate::registry::Resolved;
 use bvhlab_builders::{
-    aac, binned_sah, bonsai, incremental, lbvh, ploc, spatial_median, sweep_sah, SortedCodes,
+    aac, binned_sah, bonsai, incremental, lbvh, ploc, sbvh, spatial_median, sweep_sah, SortedCodes,
 };
-use bvhlab_bvh::{Aabb, Bvh, Vec3};
+use bvhlab_bvh::{Aabb, Bvh, Refs, Vec3};
+use bvhlab_geom::Triangle;
 use bvhlab_morton::AutoFor;
 
 /// Boxes, centres, and (for bottom-up builders) the primitives sorted by code.
 pub type BuildFn = fn(&[Aabb], &[Vec3], Option<&SortedCodes>, &Resolved) -> Bvh;
 
+/// A builder over the triangles themselves (spatial splits clip them: SBVH).
+pub type TriBuildFn = fn(&[Triangle], &Resolved) -> Bvh;
+
 /// What the pipeline needs to run a builder.
 #[derive(Clone)]
 pub struct Builder {
+    /// The call over boxes and centres; for a builder over triangles ([`Builder::triangles`]) a
+    /// stub that panics (use [`BuilderInfo::construct`], which has the triangles).
     pub run: BuildFn,
+    /// `Some`: the builder needs the triangles (it clips them) and may repeat references
+    /// ([`Builder::refs`] is `Refs::Split`).
+    pub triangles: Option<TriBuildFn>,
+    /// How often its trees reference a triangle: validation (`bvhlab_bvh::validate_refs`), and the
+    /// stages after it, go by this.
+    pub refs: Refs,
     /// `Some`: the builder consumes sorted codes from the encode stage; an encoder's `bits=auto`
     /// resolves to this builder's code length.
     pub codes: Option<AutoFor>,
@@ -40,6 +52,8 @@ pub fn standard() -> Vec<BuilderInfo> {
         top_down(&binned_sah::METHOD, |b, c, _, r| binned_sah::build_parallel(b, c, r.get("bins"), &r.config(), r.get("centroid_stop"))),
         top_down(&bonsai::METHOD, |b, c, _, r| bonsai::build(b, c, &bonsai::BonsaiConfig::from_params(&r.params, r.config()))),
         top_down(&incremental::METHOD, |b, _, _, r| incremental::build(b, &incremental::IncConfig::from_params(&r.params, r.cost))),
+        // Stich et al. 2009: clips triangles, so it takes them instead of boxes; references repeat.
+        over_triangles(&sbvh::METHOD, |t, r| sbvh::build(t, &sbvh::SbvhConfig::from_params(&r.params, r.config()))),
         bottom_up(&lbvh::METHOD, AutoFor::Lbvh, |b, _, s, _| lbvh::build(b, sorted(s))),
         bottom_up(&aac::METHOD, AutoFor::Aac, |b, _, s, r| aac::build(b, sorted(s), &r.aac_config())),
         bottom_up(&ploc::METHOD, AutoFor::Ploc, |b, _, s, r| ploc::build(b, sorted(s), &ploc::PlocConfig::from_params(&r.params))),
@@ -51,6 +65,19 @@ impl Builder {
     pub fn over_boxes(run: BuildFn) -> Builder {
         Builder {
             run,
+            triangles: None,
+            refs: Refs::Unique,
+            codes: None,
+            collapse: false,
+        }
+    }
+
+    /// A top-down builder over the triangles whose trees may reference a triangle several times.
+    pub fn over_triangles(run: TriBuildFn) -> Builder {
+        Builder {
+            run: needs_triangles,
+            triangles: Some(run),
+            refs: Refs::Split,
             codes: None,
             collapse: false,
         }
@@ -60,6 +87,8 @@ impl Builder {
     pub fn over_codes(run: BuildFn, auto: AutoFor) -> Builder {
         Builder {
             run,
+            triangles: None,
+            refs: Refs::Unique,
             codes: Some(auto),
             collapse: true,
         }
@@ -85,15 +114,20 @@ impl BuilderInfo {
         }
     }
 
-    /// What the build stage produces: the builder, then (bottom-up builders) the SAH compaction.
+    /// What the build stage produces: the builder (over the triangles, or their boxes and
+    /// centres), then (bottom-up builders) the SAH compaction.
     pub fn construct(
         &self,
+        tris: &[Triangle],
         boxes: &[Aabb],
         centers: &[Vec3],
         codes: Option<&SortedCodes>,
         r: &Resolved,
     ) -> Bvh {
-        let bvh = (self.run)(boxes, centers, codes, r);
+        let bvh = match self.triangles {
+            Some(run) => run(tris, r),
+            None => (self.run)(boxes, centers, codes, r),
+        };
         if self.collapse {
             bvhlab_bvh::collapse::collapse(&bvh, r.cost)
         } else {
@@ -104,6 +138,15 @@ impl BuilderInfo {
 
 fn top_down(m: &super::Method, run: BuildFn) -> BuilderInfo {
     MethodInfo::new(m, Builder::over_boxes(run))
+}
+
+fn over_triangles(m: &super::Method, run: TriBuildFn) -> BuilderInfo {
+    MethodInfo::new(m, Builder::over_triangles(run))
+}
+
+/// `Builder::run` of a builder over triangles: calling it without them is a bug.
+fn needs_triangles(_: &[Aabb], _: &[Vec3], _: Option<&SortedCodes>, r: &Resolved) -> Bvh {
+    panic!("builder `{}` clips triangles: call `BuilderInfo::construct` with the scene's triangles", r.builder)
 }
 
 fn bottom_up(m: &super::Method, auto: AutoFor, run: BuildFn) -> BuilderInfo {

@@ -186,7 +186,7 @@ mod tests {
             )
             .chain(r.layouts.iter().map(|m| (m.name, m.reference, &m.params)))
             .collect();
-        assert_eq!(all.len(), 8 + 3 + 3 + 5);
+        assert_eq!(all.len(), 9 + 3 + 3 + 5);
         for (name, reference, params) in all {
             assert!(!reference.is_empty(), "{name}");
             for p in params.iter() {

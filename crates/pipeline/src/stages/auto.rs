@@ -35,6 +35,7 @@ pub(crate) fn auto_search(
     a: AutoSpec,
     bvh: &Bvh,
     scene: &Scene,
+    refs: bvhlab_bvh::Refs,
 ) -> Result<(bvhlab_layout::LayoutSpec, AutoChoice)> {
     let t_search = Instant::now();
     let tris = &scene.triangles;
@@ -120,7 +121,7 @@ pub(crate) fn auto_search(
                 continue;
             }
         }
-        if let Err(e) = l.validate(tris) {
+        if let Err(e) = l.validate_refs(tris, refs) {
             cand.error = Some(format!("invalid: {e}"));
             candidates.push(cand);
             continue;

@@ -10,7 +10,7 @@ use super::optimize::Optimize;
 use super::Ops;
 use crate::error::{Error, Result};
 use crate::run::{secs, Files, Node, Runner, Stage, Timing};
-use bvhlab_bvh::{Aabb, Bvh, Metrics};
+use bvhlab_bvh::{Aabb, Bvh, Metrics, Refs};
 use bvhlab_geom::stats::median;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -71,6 +71,7 @@ pub(crate) fn repeat_bvh(
     plan: &Plan,
     node: &Node,
     boxes: &[Aabb],
+    refs: Refs,
     time_capped: bool,
     mut run: impl FnMut() -> Bvh,
 ) -> Result<BvhArtifact> {
@@ -99,7 +100,7 @@ pub(crate) fn repeat_bvh(
     }
     let (bvh, hash) = first.ok_or_else(|| Error::internal("repeat = 0"))?;
     let metrics = (ops.metrics)(&bvh, cost);
-    let validation = (ops.validate)(&bvh, boxes);
+    let validation = (ops.validate)(&bvh, boxes, refs);
     let summary = BvhSummary {
         metrics,
         valid: validation.is_ok(),
@@ -156,8 +157,11 @@ impl Stage for Build {
         }
         let (ops, cost) = (rt.ops, plan.resolved.cost);
         // Bottom-up builders include their SAH compaction (thesis: part of AAC / PLOC).
-        let art = repeat_bvh(&ops, plan, node, &boxes, false, || {
-            let bvh = (info.run)(&boxes, &centers, codes.as_ref(), &plan.resolved);
+        let art = repeat_bvh(&ops, plan, node, &boxes, info.refs, false, || {
+            let bvh = match info.triangles {
+                Some(run) => run(&scene.triangles, &plan.resolved),
+                None => (info.run)(&boxes, &centers, codes.as_ref(), &plan.resolved),
+            };
             if info.collapse {
                 (ops.collapse)(&bvh, cost)
             } else {

@@ -55,7 +55,7 @@ impl Stage for Compact {
         // Its one input: the optimized BVH, else the built one.
         let input = bvh_of(rt, plan, node.inputs[0].0)?;
         let (ops, cost) = (rt.ops, plan.resolved.cost);
-        let art = repeat_bvh(&ops, plan, node, &boxes, false, || {
+        let art = repeat_bvh(&ops, plan, node, &boxes, rt.registry.get(&plan.resolved.builder)?.refs, false, || {
             (ops.collapse)(&input.bvh, cost)
         })?;
         Ok((art, Files::new()))

@@ -263,7 +263,7 @@ impl Stage for LayoutStage {
         let (spec, choice) = match req {
             LayoutRequest::Fixed(l) => (l, None),
             LayoutRequest::Auto(a) => {
-                let (l, c) = auto_search(&rt.ops, plan, a, bvh, &scene)?;
+                let (l, c) = auto_search(&rt.ops, plan, a, bvh, &scene, rt.registry.get(&plan.resolved.builder)?.refs)?;
                 (l, Some(c))
             }
         };
@@ -300,7 +300,7 @@ impl Stage for LayoutStage {
             }
         }
         let (layout, hash) = first.ok_or_else(|| Error::internal("repeat = 0"))?;
-        let validation = layout.validate(tris);
+        let validation = layout.validate_refs(tris, rt.registry.get(&plan.resolved.builder)?.refs);
         let summary = LayoutSummary {
             layout: spec.name.clone(),
             params: spec.params_string(),

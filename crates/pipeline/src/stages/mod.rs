@@ -56,7 +56,7 @@ pub struct Ops {
     /// Canonical form of a generator spec (after `gen:`), so equivalent spellings share a key.
     pub canonical_gen: fn(&str) -> Result<String, LoadError>,
     pub metrics: fn(&Bvh, CostParams) -> Metrics,
-    pub validate: fn(&Bvh, &[Aabb]) -> Result<(), String>,
+    pub validate: fn(&Bvh, &[Aabb], bvhlab_bvh::Refs) -> Result<(), String>,
     pub collapse: fn(&Bvh, CostParams) -> Bvh,
     /// `bvhlab_morton::encode_cells`: the config plus the occupation grid's in-cell frame.
     pub encode:
@@ -72,7 +72,7 @@ impl Default for Ops {
             load: bvhlab_geom::load_scene,
             canonical_gen: bvhlab_geom::gen::canonical_spec,
             metrics: bvhlab_bvh::metrics,
-            validate: bvhlab_bvh::validate,
+            validate: bvhlab_bvh::validate_refs,
             collapse: bvhlab_bvh::collapse::collapse,
             encode: bvhlab_morton::encode_cells,
             layout: bvhlab_layout::build_until,

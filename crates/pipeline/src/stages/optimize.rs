@@ -58,7 +58,7 @@ impl Stage for Optimize {
             .ok_or_else(|| Error::internal("chain has no optimizer"))?;
         let run = rt.registry.optimizer(&o.optimizer)?.run;
         let mut info: Option<OptimizeInfo> = None;
-        let art = repeat_bvh(&rt.ops, plan, node, &boxes, o.time_capped(), || {
+        let art = repeat_bvh(&rt.ops, plan, node, &boxes, rt.registry.get(&plan.resolved.builder)?.refs, o.time_capped(), || {
             let out = run(&built.bvh, &o);
             info.get_or_insert(OptimizeInfo {
                 trace: out.trace,

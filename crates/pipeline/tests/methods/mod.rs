@@ -9,7 +9,7 @@
 //! a layout's `Err`), or a failure (`Invalid`, `Panic`). Callers compare hits with brute force.
 #![allow(dead_code)]
 use bvhlab_builders::SortedCodes;
-use bvhlab_bvh::{collapse::collapse, validate, Aabb, Bvh, CostParams, Vec3};
+use bvhlab_bvh::{collapse::collapse, validate_refs, Aabb, Bvh, CostParams, Refs, Vec3};
 use bvhlab_geom::rng::SplitMix64;
 use bvhlab_geom::{Scene, Triangle};
 use bvhlab_layout::{LayoutSpec, LAYOUTS};
@@ -126,8 +126,8 @@ impl<'a> Input<'a> {
         }
     }
 
-    fn bvh_outcome(&self, bvh: &Bvh) -> Outcome {
-        if let Err(e) = validate(bvh, &self.boxes) {
+    fn bvh_outcome(&self, bvh: &Bvh, refs: Refs) -> Outcome {
+        if let Err(e) = validate_refs(bvh, &self.boxes, refs) {
             return Outcome::Invalid(e);
         }
         Outcome::Hits(bvhlab_trace::trace(bvh, self.tris, self.rays).hits)
@@ -151,9 +151,9 @@ pub enum Built {
 pub fn run_all(input: &Input, opts: Opts, report: &mut dyn FnMut(&str, Outcome)) {
     for_each_structure(input, opts, &mut |label, built| {
         let o = match built {
-            Built::Bvh(bvh) => input.bvh_outcome(bvh),
+            Built::Bvh(bvh) => input.bvh_outcome(bvh, refs_of(label)),
             Built::Layout(Err(e)) => Outcome::Refused(e.clone()),
-            Built::Layout(Ok(l)) => layout_hits(l, input),
+            Built::Layout(Ok(l)) => layout_hits(l, input, refs_of(label)),
             Built::Panic(p) => Outcome::Panic(p.clone()),
         };
         report(label, o)
@@ -199,14 +199,14 @@ pub fn for_each_structure(input: &Input, opts: Opts, report: &mut dyn FnMut(&str
                     .resolve(info.name, params, cost)
                     .unwrap_or_else(|e| panic!("{} {params:?}: {e}", info.name));
                 let label = format!("{} [{}]", info.name, kv_string(params));
-                match guarded(|| info.construct(&input.boxes, &input.centers, None, &r)) {
+                match guarded(|| info.construct(input.tris, &input.boxes, &input.centers, None, &r)) {
                     Ok(bvh) => {
                         let bvh = tree(label.clone(), bvh, report);
                         let leaf1 = params.get("leaf").map(String::as_str) == Some("1");
-                        if params.is_empty() && info.name == "binned-sah" {
+                        if params.is_empty() && (info.name == "binned-sah" || info.refs == Refs::Split) {
                             layout_inputs.push((label.clone(), bvh.clone()));
                         }
-                        if leaf1 && (info.name == "sweep-sah" || info.name == "spatial-median") {
+                        if leaf1 && (info.name == "sweep-sah" || info.name == "spatial-median" || info.refs == Refs::Split) {
                             opt_inputs.push((label.clone(), bvh.clone()));
                         }
                         if params.is_empty() && info.name == "incremental" {
@@ -241,7 +241,7 @@ pub fn for_each_structure(input: &Input, opts: Opts, report: &mut dyn FnMut(&str
                     };
                     // The raw single-primitive-leaf tree, then what the build stage stores.
                     let raw_tree = (info.run)(&input.boxes, &input.centers, Some(&codes), &r);
-                    let built = info.construct(&input.boxes, &input.centers, Some(&codes), &r);
+                    let built = info.construct(input.tris, &input.boxes, &input.centers, Some(&codes), &r);
                     (raw_tree, built)
                 });
                 match built {
@@ -312,9 +312,19 @@ fn panic_of(o: Outcome) -> Built {
     }
 }
 
-fn layout_hits(l: &bvhlab_layout::Layout, input: &Input) -> Outcome {
+/// Structures built from an SBVH (the builder, its compaction, optimizers and layouts on it) may
+/// repeat references (Stich et al. 2009); every other structure references each triangle once.
+pub fn refs_of(label: &str) -> Refs {
+    if label.contains("sbvh") {
+        Refs::Split
+    } else {
+        Refs::Unique
+    }
+}
+
+fn layout_hits(l: &bvhlab_layout::Layout, input: &Input, refs: Refs) -> Outcome {
     guarded(|| {
-        if let Err(e) = l.validate(input.tris) {
+        if let Err(e) = l.validate_refs(input.tris, refs) {
             return Outcome::Invalid(e);
         }
         Outcome::Hits(l.trace(input.tris, input.rays).hits)
