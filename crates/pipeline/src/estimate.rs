@@ -575,6 +575,9 @@ pub fn node_seconds(
             "aac" => 580.0,
             "sweep-sah" => 615.0,
             "incremental" => 750.0,
+            // Lookahead sweeps near the root (docs/decisions.md, SBVH): conference 37 us, breakfast_room
+            // 57 us per triangle (2 threads, 2026-11-26).
+            "sbvh" => 45_000.0,
             _ => 400.0,
         }),
         "optimize" => ns_per_tri(match p("optimizer") {

@@ -36,6 +36,11 @@ pub struct ResultRow {
     pub inner_sa_ratio: f64,
     pub leaf_sa_ratio: f64,
     pub refs_per_leaf: f64,
+    /// Triangle references in the leaves: `triangles` for every builder but `sbvh`, whose spatial
+    /// splits reference a triangle from several leaves (Stich et al. 2009). The SAH and `bytes`
+    /// count references; `bytes_per_triangle` divides by triangles.
+    #[serde(default)]
+    pub references: u64,
     pub inner_nodes: u64,
     pub leaves: u64,
     pub depth: u32,

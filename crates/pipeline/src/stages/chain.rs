@@ -264,6 +264,8 @@ pub(crate) fn row(rt: &mut Runner, plan: &Plan, experiment: &str) -> Result<Resu
         inner_sa_ratio: m.inner_sa_ratio,
         leaf_sa_ratio: m.leaf_sa_ratio,
         refs_per_leaf: m.refs_per_leaf,
+        // Exact: refs_per_leaf is references / leaves in f64 (both far below 2^53).
+        references: (m.refs_per_leaf * m.leaves as f64).round() as u64,
         inner_nodes: m.inner_nodes,
         leaves: m.leaves,
         depth: m.depth,
