@@ -294,7 +294,7 @@ impl Layout {
             Layout::QbvhChunks(l) => l.validate_refs(tris, refs),
             Layout::Octree(l) => l.validate(tris),
             Layout::Octree1Bit(l) => l.validate(tris),
-            Layout::Wide(l) => l.validate(tris),
+            Layout::Wide(l) => l.validate_refs(tris, refs),
         }
     }
 

@@ -20,7 +20,7 @@
 //! binary traversal's (`bvhlab_trace::SLAB_ROBUST`). Leaves use the triangle test given as a type:
 //! the watertight f32 test for timing, the exact f64 test for counters and the oracle.
 use crate::Memory;
-use bvhlab_bvh::{Bvh, CostParams};
+use bvhlab_bvh::{Bvh, CostParams, Refs};
 use bvhlab_geom::{Aabb, Triangle, Vec3};
 use bvhlab_params::Method;
 use bvhlab_trace::fast::{Exact, SlabRay, TriTest, Watertight};
@@ -214,6 +214,14 @@ impl WideBvh {
     /// child boxes inside the box their parent slot (or the root box) gives; leaf boxes around
     /// their triangles; empty slots carry the empty box.
     pub fn validate(&self, tris: &[Triangle]) -> Result<(), String> {
+        self.validate_refs(tris, Refs::Unique)
+    }
+
+    /// [`Self::validate`] for a BVH built with `refs`: with `Refs::Split` (SBVH) a triangle may be
+    /// referenced from several leaves, each of whose boxes holds a clipped part of it (so it
+    /// overlaps the triangle's box rather than containing it), as `bvhlab_bvh::validate_split`.
+    pub fn validate_refs(&self, tris: &[Triangle], refs_kind: Refs) -> Result<(), String> {
+        let split = refs_kind == Refs::Split;
         let wd = self.width as usize;
         if self.nodes() == 0 {
             return if tris.is_empty() && self.prim_indices.is_empty() {
@@ -264,7 +272,13 @@ impl WideBvh {
                         }
                         let p = self.prim_indices[slot] as usize;
                         let t = tris.get(p).ok_or_else(|| format!("leaf {l}: triangle {p} out of range"))?;
-                        if !b.contains(&t.bounds()) {
+                        let tb = t.bounds();
+                        let inside = if split {
+                            (0..3).all(|k| b.min[k] <= tb.max[k] && tb.min[k] <= b.max[k])
+                        } else {
+                            b.contains(&tb)
+                        };
+                        if !inside {
                             return Err(format!("leaf {l}: triangle {p} outside the leaf box"));
                         }
                         refs[p] += 1;
@@ -281,7 +295,7 @@ impl WideBvh {
         if let Some(l) = seen_leaf.iter().position(|s| !s) {
             return Err(format!("leaf {l} unreachable"));
         }
-        if let Some(p) = refs.iter().position(|&r| r != 1) {
+        if let Some(p) = refs.iter().position(|&r| if split { r == 0 } else { r != 1 }) {
             return Err(format!("triangle {p} referenced {} times", refs[p]));
         }
         Ok(())
