@@ -149,14 +149,8 @@ pub fn build(boxes: &[Aabb], sorted: &SortedCodes, cfg: &AacConfig) -> Bvh {
     ctx.reduce(root, 1);
     debug_assert_eq!(ctx.merges.len(), n - 1);
     let root = ctx.id[0];
-    to_bvh(
-        boxes,
-        &ClusterTree {
-            leaf_prims: sorted.order,
-            children: &ctx.merges,
-            root,
-        },
-    )
+    let tree = ClusterTree { leaf_prims: sorted.order, children: &ctx.merges, root };
+    to_bvh(boxes, &tree)
 }
 
 /// Reduction function `f(x) = c x^alpha` of Gu et al. 2013, truncated to an integer, at least 1.

@@ -72,16 +72,10 @@ pub enum CentroidTermination {
     AnyAxis,
 }
 
-impl std::str::FromStr for CentroidTermination {
-    type Err = ();
-    fn from_str(s: &str) -> Result<CentroidTermination, ()> {
-        match s {
-            "split-axis" => Ok(CentroidTermination::SplitAxis),
-            "any-axis" => Ok(CentroidTermination::AnyAxis),
-            _ => Err(()),
-        }
-    }
-}
+bvhlab_params::choice_from_str!(CentroidTermination {
+    "split-axis" => CentroidTermination::SplitAxis,
+    "any-axis" => CentroidTermination::AnyAxis,
+});
 
 /// Which axes a node bins along.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -95,16 +89,7 @@ pub enum Axes {
     All,
 }
 
-impl std::str::FromStr for Axes {
-    type Err = ();
-    fn from_str(s: &str) -> Result<Axes, ()> {
-        match s {
-            "largest" => Ok(Axes::Largest),
-            "all" => Ok(Axes::All),
-            _ => Err(()),
-        }
-    }
-}
+bvhlab_params::choice_from_str!(Axes { "largest" => Axes::Largest, "all" => Axes::All });
 
 /// Everything of [`METHOD`] that shapes the tree besides [`TopDownConfig`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -35,14 +35,8 @@ pub fn build(boxes: &[Aabb], sorted: &SortedCodes) -> Bvh {
     // Leaf i is the i-th key (primitive order[i]); internal node i has id n + i; the root is
     // internal node 0 (Karras 2012 section 3), or leaf 0 when there is only one primitive.
     let root = if n == 1 { 0 } else { n as u32 };
-    to_bvh(
-        boxes,
-        &ClusterTree {
-            leaf_prims: sorted.order,
-            children: &children,
-            root,
-        },
-    )
+    let tree = ClusterTree { leaf_prims: sorted.order, children: &children, root };
+    to_bvh(boxes, &tree)
 }
 
 /// Children of the `n - 1` internal nodes of the binary radix tree over `codes` (non-decreasing),

@@ -59,14 +59,8 @@ pub fn build(boxes: &[Aabb], sorted: &SortedCodes, cfg: &PlocConfig) -> Bvh {
         return Bvh::default();
     }
     let (children, root) = cluster(boxes, sorted.order, cfg.radius.max(1) as usize);
-    to_bvh(
-        boxes,
-        &ClusterTree {
-            leaf_prims: sorted.order,
-            children: &children,
-            root,
-        },
-    )
+    let tree = ClusterTree { leaf_prims: sorted.order, children: &children, root };
+    to_bvh(boxes, &tree)
 }
 
 // `a < b ? a : b` and `a > b ? a : b`: one `minps` / `maxps` each (Rust's `f32::min` adds NaN

@@ -577,10 +577,7 @@ pub fn trace_one<T: Topo>(
     stack: &mut Vec<(T::N, Aabb, f32)>,
 ) -> (Hit, u32, u32) {
     use bvhlab_geom::aabb::{fmax as mx, fmin as mn};
-    let mut best = Hit {
-        t: ray.tmax,
-        prim: u32::MAX,
-    };
+    let mut best = Hit::within(ray.tmax);
     if ray.tmax.is_nan() || ray.tmax <= 0.0 || world.is_empty() {
         return (Hit::NONE, 0, 0);
     }
@@ -672,11 +669,7 @@ pub fn trace_one<T: Topo>(
             }
         }
     }
-    let hit = if best.prim == u32::MAX {
-        Hit::NONE
-    } else {
-        best
-    };
+    let hit = best.found();
     (hit, steps, tests)
 }
 

@@ -528,10 +528,7 @@ impl View<'_> {
         rb: Option<&RayBox>,
         stack: &mut Stack,
     ) -> (Hit, u32, u32) {
-        let mut best = Hit {
-            t: ray.tmax,
-            prim: u32::MAX,
-        };
+        let mut best = Hit::within(ray.tmax);
         let (mut steps, mut tests) = (0u32, 0u32);
         // Prepared at the first leaf: many rays never reach one.
         let mut tr: Option<T::Ray> = None;
@@ -539,7 +536,7 @@ impl View<'_> {
         let mut cur = 0u32;
         let mut budget = self.nodes + self.leaves.len();
         let stride = 7 * W;
-        'outer: loop {
+        loop {
             if budget == 0 {
                 break;
             }
@@ -597,15 +594,12 @@ impl View<'_> {
                     }
                 }
             }
-            while let Some((n, entry)) = stack.pop() {
-                if entry <= best.t * SLAB_ROBUST {
-                    cur = n;
-                    continue 'outer;
-                }
+            match stack.pop_within(best.t * SLAB_ROBUST) {
+                Some((n, _)) => cur = n,
+                None => break,
             }
-            break;
         }
-        let hit = if best.prim == u32::MAX { Hit::NONE } else { best };
+        let hit = best.found();
         (hit, steps, tests)
     }
 }

@@ -222,6 +222,23 @@ impl Read for Params {
     }
 }
 
+/// `FromStr` for an enum whose variants are the values of a [`Kind::Choice`] parameter, from its
+/// table of names: `choice_from_str!(Axes { "largest" => Axes::Largest, "all" => Axes::All });`.
+#[macro_export]
+macro_rules! choice_from_str {
+    ($t:ty { $($name:literal => $v:expr),+ $(,)? }) => {
+        impl std::str::FromStr for $t {
+            type Err = ();
+            fn from_str(s: &str) -> Result<$t, ()> {
+                match s {
+                    $($name => Ok($v),)+
+                    _ => Err(()),
+                }
+            }
+        }
+    };
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

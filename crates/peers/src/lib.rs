@@ -140,7 +140,13 @@ impl Peer {
         self.available()?;
         let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| match self {
             Peer::Obvhs => obvhs_ploc::build(boxes, methods::obvhs_params(params)?),
-            _ => self.build_embree(tris, boxes, params, c_t, c_i),
+            #[cfg(has_embree)]
+            _ => embree::build(tris, boxes, &self.embree_config(params, c_t, c_i)?),
+            #[cfg(not(has_embree))]
+            _ => {
+                let _ = (tris, c_t, c_i);
+                Err(EMBREE_MISSING.into())
+            }
         }));
         caught.unwrap_or_else(|_| Err(format!("{} panicked", self.library())))
     }
@@ -154,36 +160,17 @@ impl Peer {
         }
     }
 
-    fn build_embree(
-        self,
-        tris: &[Triangle],
-        boxes: &[Aabb],
-        params: &bvhlab_params::Params,
-        c_t: f32,
-        c_i: f32,
-    ) -> Result<PeerBuild, String> {
-        #[cfg(not(has_embree))]
-        {
-            let _ = (tris, boxes, params, c_t, c_i);
-            Err(EMBREE_MISSING.into())
-        }
-        #[cfg(has_embree)]
-        {
-            let u = |k: &str| {
-                params
-                    .get(k)
-                    .and_then(|v| v.parse::<u32>().ok())
-                    .ok_or(format!("embree: bad `{k}`"))
-            };
-            let cfg = embree::EmbreeConfig {
-                quality: self.quality(),
-                max_leaf: u("max_leaf")?,
-                c_t,
-                c_i,
-                threads: u("threads")? as usize,
-            };
-            embree::build(tris, boxes, &cfg)
-        }
+    /// Embree's build settings from the canonical parameters and the chain's SAH constants.
+    #[cfg(has_embree)]
+    fn embree_config(self, params: &bvhlab_params::Params, c_t: f32, c_i: f32) -> Result<embree::EmbreeConfig, String> {
+        let u = |k: &str| params.get(k).and_then(|v| v.parse::<u32>().ok()).ok_or(format!("embree: bad `{k}`"));
+        Ok(embree::EmbreeConfig {
+            quality: self.quality(),
+            max_leaf: u("max_leaf")?,
+            c_t,
+            c_i,
+            threads: u("threads")? as usize,
+        })
     }
 
     /// The peer's own traversal of `rays` (one thread). obvhs traces the very tree bvhlab imported

@@ -97,6 +97,16 @@ pub(crate) enum Timing {
     Trace,
 }
 
+/// What a stage stores: the full artifact, which knows its summary.
+pub(crate) trait Artifact: Serialize + DeserializeOwned + Send + Sync + 'static {
+    /// What a result row needs (`<key>.sum`): a warm run reads only these.
+    type Sum: Serialize + DeserializeOwned + Clone + Send + Sync + 'static;
+    fn summary(&self) -> Self::Sum;
+}
+
+/// A stage's summary type.
+pub(crate) type Sum<S> = <<S as Stage>::Full as Artifact>::Sum;
+
 /// A cached stage: its node and how it is computed. Everything else (memo, key, lock, store,
 /// verification, commit, counting) is `Runner`'s, the same for every stage.
 pub(crate) trait Stage: Sized + 'static {
@@ -107,15 +117,12 @@ pub(crate) trait Stage: Sized + 'static {
     /// `Runner::forget`. Stages without one (measure, focus) set false and `Full = Sum`: they store
     /// only the summary and read it from the store at each use (with its `also` files checked).
     const FULL: bool = true;
-    type Full: Serialize + DeserializeOwned + Send + Sync + 'static;
-    /// What a result row needs (`<key>.sum`): a warm run reads only these.
-    type Sum: Serialize + DeserializeOwned + Clone + Send + Sync + 'static;
+    type Full: Artifact;
 
     /// The stage's node in `plan` (whose upstream nodes are planned already), or None when the
     /// chain has no such stage: version, canonical parameters (defaults filled in) and inputs,
     /// all the key hashes. May record what its compute needs in `plan`.
     fn declare(rt: &mut Runner, plan: &mut Plan) -> Result<Option<Node>>;
-    fn summary(full: &Self::Full) -> Self::Sum;
     /// Raw files of the entry checked with it before it is used (measure's heat map).
     fn also(_plan: &Plan) -> &'static [&'static str] {
         &[]
@@ -298,7 +305,7 @@ impl Runner {
                 self.store.put(S::NAME, &node.key, "bin", &full)?,
             );
         }
-        let sum = S::summary(&full);
+        let sum = full.summary();
         files.insert(
             "sum".into(),
             self.store.put(S::NAME, &node.key, "sum", &sum)?,
@@ -315,11 +322,11 @@ impl Runner {
         &mut self,
         node: &Node,
         full: S::Full,
-        sum: Option<S::Sum>,
+        sum: Option<Sum<S>>,
     ) -> Arc<S::Full> {
         let a = Arc::new(full);
         if S::FULL {
-            let sum = sum.unwrap_or_else(|| S::summary(&a));
+            let sum = sum.unwrap_or_else(|| a.summary());
             self.parts.insert((S::NAME, node.key, "sum"), Arc::new(sum));
             self.fulls.insert((S::NAME, node.key), a.clone());
         }
@@ -330,23 +337,23 @@ impl Runner {
     /// the full artifact), else from the full artifact (read or computed). A full artifact read
     /// intact whose summary is missing restores the summary (the same bytes: the manifest stays
     /// right).
-    pub(crate) fn summary<S: Stage>(&mut self, plan: &Plan) -> Result<S::Sum> {
+    pub(crate) fn summary<S: Stage>(&mut self, plan: &Plan) -> Result<Sum<S>> {
         if !S::FULL {
-            return Ok(S::summary(&*self.full::<S>(plan)?));
+            return Ok(self.full::<S>(plan)?.summary());
         }
         let node = plan.need(S::NAME)?.clone();
         let id = (S::NAME, node.key, "sum");
         if let Some(s) = self.parts.get(&id) {
-            return downcast::<S::Sum>(s.clone()).map(|s| (*s).clone());
+            return downcast::<Sum<S>>(s.clone()).map(|s| (*s).clone());
         }
-        if let Some(s) = self.cached::<S::Sum>(&node, "sum") {
+        if let Some(s) = self.cached::<Sum<S>>(&node, "sum") {
             self.note(S::NAME, node.key, false);
             self.parts.insert(id, Arc::new(s.clone()));
             return Ok(s);
         }
         self.full::<S>(plan)?; // remembers the summary too
         let sum = match self.parts.get(&id) {
-            Some(s) => downcast::<S::Sum>(s.clone())?,
+            Some(s) => downcast::<Sum<S>>(s.clone())?,
             None => return Err(Error::internal(format!("{} summary not kept", S::NAME))),
         };
         if !self.store.path(S::NAME, &node.key, "sum").exists() {

@@ -369,10 +369,7 @@ fn bvh2_one<T: TriTest, B: BoxTest, const STATS: bool>(
     inv: [f32; 3],
     stack: &mut Stack,
 ) -> (Hit, u32, u32) {
-    let mut best = Hit {
-        t: ray.tmax,
-        prim: u32::MAX,
-    };
+    let mut best = Hit::within(ray.tmax);
     let (mut steps, mut tests) = (0u32, 0u32);
     let Some(root) = nodes.first() else {
         return (Hit::NONE, 0, 0);
@@ -386,7 +383,7 @@ fn bvh2_one<T: TriTest, B: BoxTest, const STATS: bool>(
     let mut cur = 0u32;
     // A valid tree enters each node at most once per ray; the bound stops a cycle in a malformed one.
     let mut budget = nodes.len();
-    'outer: loop {
+    loop {
         if budget == 0 {
             break;
         }
@@ -436,15 +433,12 @@ fn bvh2_one<T: TriTest, B: BoxTest, const STATS: bool>(
             }
         }
         // Pop until a node whose entry is not beyond the closest hit (margin as in `trace_one`).
-        while let Some((n, entry)) = stack.pop() {
-            if entry <= best.t * SLAB_ROBUST {
-                cur = n;
-                continue 'outer;
-            }
+        match stack.pop_within(best.t * SLAB_ROBUST) {
+            Some((n, _)) => cur = n,
+            None => break,
         }
-        break;
     }
-    let hit = if best.prim == u32::MAX { Hit::NONE } else { best };
+    let hit = best.found();
     (hit, steps, tests)
 }
 

@@ -9,7 +9,7 @@ pub mod traverse;
 
 pub use rays::{primary_rays, random_rays, shadow_rays, Camera, Ray};
 pub use fast::{agrees, check_agreement, FastBvh2, TriStore, WTri};
-pub use traverse::{
+pub use traverse::{Pending, 
     accept, brute_force, brute_force_one, intersect_triangle, trace, trace_with, Hit, RayBox,
     Stack, TraceStats, SLAB_ROBUST,
 };

@@ -23,6 +23,15 @@ impl Hit {
         t: f32::INFINITY,
         prim: u32::MAX,
     };
+    /// No hit yet, searching up to `tmax` (a traversal's start).
+    pub fn within(tmax: f32) -> Hit {
+        Hit { t: tmax, prim: u32::MAX }
+    }
+    /// The hit, or [`Hit::NONE`] when the search found nothing (its `t` was only the limit).
+    #[inline(always)]
+    pub fn found(self) -> Hit {
+        if self.is_hit() { self } else { Hit::NONE }
+    }
     pub fn is_hit(&self) -> bool {
         self.prim != u32::MAX
     }
@@ -169,30 +178,31 @@ impl RayBox {
 /// Entries kept in the fixed stack before spilling to a heap vector (only for very deep trees).
 const STACK_SIZE: usize = 64;
 
-/// LIFO of (node index, entry distance): fixed array first, then a spill vector whose entries
-/// are always above the array's, so a BVH deeper than the array never panics.
-pub struct Stack {
-    items: [(u32, f32); STACK_SIZE],
+/// LIFO of pending nodes, by default (node index, entry distance): fixed array first, then a
+/// spill vector whose entries are always above the array's, so a BVH deeper than the array never
+/// panics. Generic so that every layout's traversal uses the same one.
+pub struct Stack<T = (u32, f32)> {
+    items: [T; STACK_SIZE],
     len: usize,
-    spill: Vec<(u32, f32)>,
+    spill: Vec<T>,
 }
 
-impl Default for Stack {
+impl<T: Copy + Default> Default for Stack<T> {
     fn default() -> Self {
         Stack::new()
     }
 }
 
-impl Stack {
-    pub fn new() -> Stack {
+impl<T: Copy + Default> Stack<T> {
+    pub fn new() -> Stack<T> {
         Stack {
-            items: [(0, 0.0); STACK_SIZE],
+            items: [T::default(); STACK_SIZE],
             len: 0,
             spill: Vec::new(),
         }
     }
     #[inline(always)]
-    pub fn push(&mut self, e: (u32, f32)) {
+    pub fn push(&mut self, e: T) {
         if self.len < STACK_SIZE {
             self.items[self.len] = e;
             self.len += 1;
@@ -201,7 +211,7 @@ impl Stack {
         }
     }
     #[inline(always)]
-    pub fn pop(&mut self) -> Option<(u32, f32)> {
+    pub fn pop(&mut self) -> Option<T> {
         if let Some(e) = self.spill.pop() {
             return Some(e);
         }
@@ -214,6 +224,31 @@ impl Stack {
     pub fn clear(&mut self) {
         self.len = 0;
         self.spill.clear();
+    }
+}
+
+/// A pending node on a [`Stack`] with the distance at which the ray enters it.
+pub trait Pending: Copy + Default {
+    fn entry(&self) -> f32;
+}
+
+impl Pending for (u32, f32) {
+    fn entry(&self) -> f32 {
+        self.1
+    }
+}
+
+impl<T: Pending> Stack<T> {
+    /// Pops until an entry at most `limit` away (the closest hit so far with its margin) and
+    /// returns it; None when no pending node can hold a closer hit.
+    #[inline(always)]
+    pub fn pop_within(&mut self, limit: f32) -> Option<T> {
+        while let Some(e) = self.pop() {
+            if e.entry() <= limit {
+                return Some(e);
+            }
+        }
+        None
     }
 }
 
@@ -232,10 +267,7 @@ fn trace_one(
     ray: &Ray,
     stack: &mut Stack,
 ) -> (Hit, u32, u32) {
-    let mut best = Hit {
-        t: ray.tmax,
-        prim: u32::MAX,
-    };
+    let mut best = Hit::within(ray.tmax);
     let mut steps = 0u32;
     let mut tests = 0u32;
     let Some(root) = nodes.first() else {
@@ -301,11 +333,7 @@ fn trace_one(
                 loop {
                     match stack.pop() {
                         None => {
-                            let hit = if best.prim == u32::MAX {
-                                Hit::NONE
-                            } else {
-                                best
-                            };
+                            let hit = best.found();
                             return (hit, steps, tests);
                         }
                         // Same robustness margin as the child test (`hit` scales `far`, which
@@ -321,11 +349,7 @@ fn trace_one(
             }
         }
     }
-    let hit = if best.prim == u32::MAX {
-        Hit::NONE
-    } else {
-        best
-    };
+    let hit = best.found();
     (hit, steps, tests)
 }
 
@@ -378,10 +402,7 @@ where
 
 /// Closest hit of one ray against every triangle, with the traversal's test and acceptance rule.
 pub fn brute_force_one(tris: &[Triangle], ray: &Ray) -> Hit {
-    let mut best = Hit {
-        t: ray.tmax,
-        prim: u32::MAX,
-    };
+    let mut best = Hit::within(ray.tmax);
     if ray.tmax.is_nan() || ray.tmax <= 0.0 {
         return Hit::NONE;
     }
@@ -390,11 +411,7 @@ pub fn brute_force_one(tris: &[Triangle], ray: &Ray) -> Hit {
             accept(t, i as u32, &mut best);
         }
     }
-    if best.prim == u32::MAX {
-        Hit::NONE
-    } else {
-        best
-    }
+    best.found()
 }
 
 /// The oracle: closest hit of each ray against every triangle.

@@ -115,10 +115,7 @@ impl QbvhChunks {
         ray: &Ray,
         stack: &mut QStack<M::C<L::B>>,
     ) -> (Hit, u32, u32) {
-        let mut best = Hit {
-            t: ray.tmax,
-            prim: u32::MAX,
-        };
+        let mut best = Hit::within(ray.tmax);
         if self.nodes == 0 || ray.tmax.is_nan() || ray.tmax <= 0.0 {
             return (Hit::NONE, 0, 0);
         }
@@ -130,11 +127,7 @@ impl QbvhChunks {
         let mut tests = 0u32;
         let (words, keys) = (&self.words[..], &self.keys[..]);
         let finish = |best: Hit, steps, tests| {
-            let h = if best.prim == u32::MAX {
-                Hit::NONE
-            } else {
-                best
-            };
+            let h = best.found();
             (h, steps, tests)
         };
         if words.is_empty() {
@@ -177,7 +170,7 @@ impl QbvhChunks {
                 }
                 (Some(_), None) => Some((pc, ps, M::carry(b0))),
                 (None, Some(_)) => Some((pc, ps + 1, M::carry(b1))),
-                (None, None) => stack.pop_within(best.t * SLAB_ROBUST),
+                (None, None) => stack.pop_within(best.t * SLAB_ROBUST).map(Entry::unpack),
             };
             // Enter nodes until an inner one gives the next pair to test.
             loop {
@@ -194,7 +187,7 @@ impl QbvhChunks {
                 if !inner {
                     let l = h.leaf_offset as usize + s - r as usize;
                     self.leaf(l, tris, ray, &mut best, &mut tests);
-                    cur = stack.pop_within(best.t * SLAB_ROBUST);
+                    cur = stack.pop_within(best.t * SLAB_ROBUST).map(Entry::unpack);
                     continue;
                 }
                 if r < inner_groups {
@@ -317,57 +310,18 @@ struct Entry<B> {
     b: B,
 }
 
-const STACK_SIZE: usize = 64;
-
-/// LIFO of pending nodes: fixed array first, then a spill vector above it (deep trees never
-/// overflow, as in `bvhlab_trace::Stack`).
-struct QStack<B> {
-    items: [Entry<B>; STACK_SIZE],
-    len: usize,
-    spill: Vec<Entry<B>>,
-}
-
-impl<B: Copy + Default> QStack<B> {
-    fn new() -> Self {
-        QStack {
-            items: [Entry::default(); STACK_SIZE],
-            len: 0,
-            spill: Vec::new(),
-        }
-    }
-    #[inline(always)]
-    fn clear(&mut self) {
-        self.len = 0;
-        self.spill.clear();
-    }
-    #[inline(always)]
-    fn push(&mut self, e: Entry<B>) {
-        if self.len < STACK_SIZE {
-            self.items[self.len] = e;
-            self.len += 1;
-        } else {
-            self.spill.push(e);
-        }
-    }
-    #[inline(always)]
-    fn pop(&mut self) -> Option<Entry<B>> {
-        if let Some(e) = self.spill.pop() {
-            return Some(e);
-        }
-        if self.len == 0 {
-            return None;
-        }
-        self.len -= 1;
-        Some(self.items[self.len])
-    }
-    /// Pops until an entry whose entry distance is within `limit` (closer hits cull the rest).
-    #[inline(always)]
-    fn pop_within(&mut self, limit: f32) -> Option<(usize, usize, B)> {
-        while let Some(e) = self.pop() {
-            if e.t <= limit {
-                return Some((e.chunk as usize, e.slot as usize, e.b));
-            }
-        }
-        None
+impl<B: Copy + Default> bvhlab_trace::Pending for Entry<B> {
+    fn entry(&self) -> f32 {
+        self.t
     }
 }
+
+impl<B> Entry<B> {
+    #[inline(always)]
+    fn unpack(self) -> (usize, usize, B) {
+        (self.chunk as usize, self.slot as usize, self.b)
+    }
+}
+
+/// Pending nodes (the shared fixed-then-spill stack of `bvhlab_trace`).
+type QStack<B> = bvhlab_trace::Stack<Entry<B>>;

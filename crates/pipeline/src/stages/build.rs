@@ -9,7 +9,7 @@ use super::load::Load;
 use super::optimize::Optimize;
 use super::Ops;
 use crate::error::{Error, Result};
-use crate::run::{secs, Files, Node, Runner, Stage, Timing};
+use crate::run::{secs, Artifact, Files, Node, Runner, Stage, Timing};
 use bvhlab_bvh::{Aabb, Bvh, Metrics, Refs};
 use bvhlab_geom::stats::median;
 use serde::{Deserialize, Serialize};
@@ -118,7 +118,6 @@ impl Stage for Build {
     const NAME: &'static str = "build";
     const TIMING: Timing = Timing::Build;
     type Full = BvhArtifact;
-    type Sum = BvhSummary;
 
     fn declare(rt: &mut Runner, plan: &mut Plan) -> Result<Option<Node>> {
         let (builder, repeat) = (&plan.resolved.builder, plan.spec.repeat);
@@ -130,9 +129,6 @@ impl Stage for Build {
         Ok(Some(Node::new(Self::NAME, rt.versions.build, p, inputs)))
     }
 
-    fn summary(a: &BvhArtifact) -> BvhSummary {
-        a.summary.clone()
-    }
 
     fn compute(rt: &mut Runner, plan: &Plan, node: &Node) -> Result<(BvhArtifact, Files)> {
         let scene = rt.full::<Load>(plan)?;
@@ -177,5 +173,12 @@ impl Stage for Build {
             ))
         })?;
         Ok((art, Files::new()))
+    }
+}
+
+impl Artifact for BvhArtifact {
+    type Sum = BvhSummary;
+    fn summary(&self) -> BvhSummary {
+    self.summary.clone()
     }
 }

@@ -16,7 +16,7 @@ use super::{scene_name, ChainSpec};
 use crate::error::{Error, Result};
 use crate::key::params_string;
 use crate::registry::{fmt_f32, Resolved, ResolvedEncoder, ResolvedOptimizer};
-use crate::run::{Node, Runner, Stage, Timing};
+use crate::run::{Node, Runner, Stage, Sum, Timing};
 use crate::ResultRow;
 use bvhlab_bvh::CostParams;
 use bvhlab_geom::stats::spread;
@@ -181,7 +181,7 @@ pub(crate) fn method_params(
 }
 
 /// The summary of `S` if the chain has that stage.
-fn summary_if<S: Stage>(rt: &mut Runner, plan: &Plan) -> Result<Option<S::Sum>> {
+fn summary_if<S: Stage>(rt: &mut Runner, plan: &Plan) -> Result<Option<Sum<S>>> {
     match plan.node(S::NAME) {
         Some(_) => rt.summary::<S>(plan).map(Some),
         None => Ok(None),

@@ -1,6 +1,6 @@
 //! The compact stage: the SAH compaction (`bvhlab_bvh::collapse`, thesis 3.4.4, Bittner 3.6) of
 //! the built or optimized BVH (after the optimizer, as Bittner 2013 3.6 orders them).
-use super::build::{bvh_of, repeat_bvh, BvhArtifact, BvhSummary};
+use super::build::{bvh_of, repeat_bvh, BvhArtifact};
 use super::chain::{cost_params, param, Plan};
 use super::load::Load;
 use crate::error::{Error, Result};
@@ -29,7 +29,6 @@ impl Stage for Compact {
     const NAME: &'static str = "compact";
     const TIMING: Timing = Timing::Build;
     type Full = BvhArtifact;
-    type Sum = BvhSummary;
 
     fn declare(rt: &mut Runner, plan: &mut Plan) -> Result<Option<Node>> {
         if plan.spec.compact == "none" {
@@ -45,9 +44,6 @@ impl Stage for Compact {
         Ok(Some(Node::new(Self::NAME, rt.versions.compact, p, inputs)))
     }
 
-    fn summary(a: &BvhArtifact) -> BvhSummary {
-        a.summary.clone()
-    }
 
     fn compute(rt: &mut Runner, plan: &Plan, node: &Node) -> Result<(BvhArtifact, Files)> {
         let scene = rt.full::<Load>(plan)?;

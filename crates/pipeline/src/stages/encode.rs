@@ -3,7 +3,7 @@
 use super::chain::{method_params, Plan};
 use super::load::Load;
 use crate::error::{Error, Result};
-use crate::run::{secs, Files, Node, Runner, Stage, Timing};
+use crate::run::{secs, Artifact, Files, Node, Runner, Stage, Timing};
 use bvhlab_geom::stats::median;
 use bvhlab_morton::Encoding;
 use serde::{Deserialize, Serialize};
@@ -37,7 +37,6 @@ impl Stage for Encode {
     const NAME: &'static str = "encode";
     const TIMING: Timing = Timing::Build;
     type Full = EncodeArtifact;
-    type Sum = EncodeSummary;
 
     /// Encoder parameters are canonical with `bits=auto` resolved for the builder, so chains
     /// whose codes are identical (e.g. emc64-var for aac and ploc) share the encode node.
@@ -51,9 +50,6 @@ impl Stage for Encode {
         Ok(Some(Node::new(Self::NAME, rt.versions.encode, p, inputs)))
     }
 
-    fn summary(a: &EncodeArtifact) -> EncodeSummary {
-        a.summary.clone()
-    }
 
     fn compute(rt: &mut Runner, plan: &Plan, _: &Node) -> Result<(EncodeArtifact, Files)> {
         let enc = plan
@@ -99,5 +95,12 @@ impl Stage for Encode {
             seconds,
         };
         Ok((EncodeArtifact { encoding, summary }, Files::new()))
+    }
+}
+
+impl Artifact for EncodeArtifact {
+    type Sum = EncodeSummary;
+    fn summary(&self) -> EncodeSummary {
+    self.summary.clone()
     }
 }

@@ -4,7 +4,7 @@ use super::build::final_bvh;
 use super::chain::{cost_params, Plan};
 use super::load::Load;
 use crate::error::{Error, Result};
-use crate::run::{Files, Node, Runner, Stage, Timing};
+use crate::run::{Artifact, Files, Node, Runner, Stage, Timing};
 use bvhlab_bvh::Aabb;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -70,7 +70,6 @@ impl Stage for Focus {
     const TIMING: Timing = Timing::None;
     const FULL: bool = false;
     type Full = FocusSummary;
-    type Sum = FocusSummary;
 
     fn declare(rt: &mut Runner, plan: &mut Plan) -> Result<Option<Node>> {
         let Some(b) = plan.spec.focus else {
@@ -83,9 +82,6 @@ impl Stage for Focus {
         Ok(Some(Node::new(Self::NAME, rt.versions.focus, p, inputs)))
     }
 
-    fn summary(f: &FocusSummary) -> FocusSummary {
-        f.clone()
-    }
 
     fn compute(rt: &mut Runner, plan: &Plan, _: &Node) -> Result<(FocusSummary, Files)> {
         let focus_box = plan
@@ -107,5 +103,12 @@ impl Stage for Focus {
             sah_cost: result.map(|(_, c)| c),
         };
         Ok((f, Files::new()))
+    }
+}
+
+impl Artifact for FocusSummary {
+    type Sum = FocusSummary;
+    fn summary(&self) -> FocusSummary {
+    self.clone()
     }
 }

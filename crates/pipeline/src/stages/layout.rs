@@ -6,7 +6,7 @@ use super::build::final_bvh;
 use super::chain::{cost_params, method_version, param, Plan};
 use super::load::Load;
 use crate::error::{Error, Result};
-use crate::run::{secs, Files, Node, Runner, Stage, Timing};
+use crate::run::{secs, Artifact, Files, Node, Runner, Stage, Timing};
 use bvhlab_bvh::Bvh;
 use bvhlab_geom::stats::median;
 use bvhlab_layout::{Layout, LayoutSpec, Memory};
@@ -158,7 +158,6 @@ impl Stage for LayoutStage {
     const NAME: &'static str = "layout";
     const TIMING: Timing = Timing::Trace;
     type Full = LayoutArtifact;
-    type Sum = LayoutSummary;
 
     fn declare(rt: &mut Runner, plan: &mut Plan) -> Result<Option<Node>> {
         let Some(spec) = &plan.spec.layout else {
@@ -216,9 +215,6 @@ impl Stage for LayoutStage {
         Ok(Some(Node::new(Self::NAME, rt.versions.layout, p, inputs)))
     }
 
-    fn summary(a: &LayoutArtifact) -> LayoutSummary {
-        a.summary.clone()
-    }
 
     fn compute(rt: &mut Runner, plan: &Plan, _: &Node) -> Result<(LayoutArtifact, Files)> {
         let req = plan
@@ -373,5 +369,12 @@ mod tests {
                 "{c}"
             );
         }
+    }
+}
+
+impl Artifact for LayoutArtifact {
+    type Sum = LayoutSummary;
+    fn summary(&self) -> LayoutSummary {
+    self.summary.clone()
     }
 }

@@ -4,7 +4,7 @@
 use super::chain::Plan;
 use super::SceneSource;
 use crate::error::{Error, Result};
-use crate::run::{Files, Node, Runner, Stage, Timing};
+use crate::run::{Artifact, Files, Node, Runner, Stage, Timing};
 use bvhlab_bvh::Aabb;
 use bvhlab_geom::Scene;
 use serde::{Deserialize, Serialize};
@@ -47,7 +47,6 @@ impl Stage for Load {
     const NAME: &'static str = "load";
     const TIMING: Timing = Timing::None;
     type Full = Scene;
-    type Sum = SceneSummary;
 
     fn declare(rt: &mut Runner, plan: &mut Plan) -> Result<Option<Node>> {
         let content = match &plan.spec.source {
@@ -72,14 +71,6 @@ impl Stage for Load {
         )))
     }
 
-    fn summary(scene: &Scene) -> SceneSummary {
-        SceneSummary {
-            triangles: scene.triangles.len() as u64,
-            dropped_triangles: scene.dropped_triangles,
-            bounds: scene.bounds(),
-            precision_loss: scene.precision_loss(),
-        }
-    }
 
     fn compute(rt: &mut Runner, plan: &Plan, _: &Node) -> Result<(Scene, Files)> {
         let scene = (rt.ops.load)(&plan.spec.source.load_spec())?;
@@ -90,5 +81,17 @@ impl Stage for Load {
             )));
         }
         Ok((scene, Files::new()))
+    }
+}
+
+impl Artifact for Scene {
+    type Sum = SceneSummary;
+    fn summary(&self) -> SceneSummary {
+    SceneSummary {
+        triangles: self.triangles.len() as u64,
+        dropped_triangles: self.dropped_triangles,
+        bounds: self.bounds(),
+        precision_loss: self.precision_loss(),
+    }
     }
 }

@@ -5,7 +5,7 @@ use super::chain::{param, Plan};
 use super::layout::LayoutStage;
 use super::load::Load;
 use crate::error::{Error, Result};
-use crate::run::{secs, Files, Node, Runner, Stage, Timing};
+use crate::run::{secs, Artifact, Files, Node, Runner, Stage, Timing};
 use crate::store::Store;
 use bvhlab_geom::stats::median;
 use bvhlab_geom::Scene;
@@ -183,7 +183,6 @@ impl Stage for Measure {
     const TIMING: Timing = Timing::Trace;
     const FULL: bool = false;
     type Full = MeasureSummary;
-    type Sum = MeasureSummary;
 
     fn declare(rt: &mut Runner, plan: &mut Plan) -> Result<Option<Node>> {
         let Some(rays) = plan.spec.rays else {
@@ -207,9 +206,6 @@ impl Stage for Measure {
         Ok(Some(Node::new(Self::NAME, rt.versions.measure, p, inputs)))
     }
 
-    fn summary(m: &MeasureSummary) -> MeasureSummary {
-        m.clone()
-    }
 
     /// Primary rays leave a heat map the report copies: checked like the summary.
     fn also(plan: &Plan) -> &'static [&'static str] {
@@ -427,5 +423,12 @@ mod tests {
         assert_eq!(paired_ratios(&[2.0, 3.0], &[1.0, 2.0]), vec![2.0, 1.5]);
         assert!(paired_ratios(&[2.0, 3.0], &[1.0]).is_empty());
         assert!(paired_ratios(&[2.0], &[0.0]).is_empty());
+    }
+}
+
+impl Artifact for MeasureSummary {
+    type Sum = MeasureSummary;
+    fn summary(&self) -> MeasureSummary {
+    self.clone()
     }
 }

@@ -1,6 +1,6 @@
 //! The optimize stage: an optimizer of the registry (ibo, Kensler rotations) on the built BVH,
 //! before the compaction (Bittner 2013 3.6). Keeps the pass-by-pass trace beside the BVH.
-use super::build::{repeat_bvh, Build, BvhArtifact, BvhSummary};
+use super::build::{repeat_bvh, Build, BvhArtifact};
 use super::chain::{cost_params, method_params, Plan};
 use super::load::Load;
 use crate::error::{Error, Result};
@@ -29,7 +29,6 @@ impl Stage for Optimize {
     const NAME: &'static str = "optimize";
     const TIMING: Timing = Timing::Build;
     type Full = BvhArtifact;
-    type Sum = BvhSummary;
 
     fn declare(rt: &mut Runner, plan: &mut Plan) -> Result<Option<Node>> {
         let Some(o) = &plan.optimizer else {
@@ -42,9 +41,6 @@ impl Stage for Optimize {
         Ok(Some(Node::new(Self::NAME, rt.versions.optimize, p, inputs)))
     }
 
-    fn summary(a: &BvhArtifact) -> BvhSummary {
-        a.summary.clone()
-    }
 
     fn compute(rt: &mut Runner, plan: &Plan, node: &Node) -> Result<(BvhArtifact, Files)> {
         let scene = rt.full::<Load>(plan)?;
