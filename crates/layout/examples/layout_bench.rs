@@ -9,31 +9,18 @@
 //! rays (as in tests/common) alternated with bvh2 in every round, the slowdown (median layout /
 //! median bvh2, by wall time and by the tracing thread's CPU time when on 1 thread), extra steps and
 //! extra triangle tests per ray against bvh2, and hits differing from bvh2 (must be 0).
+mod common;
+use common::{same_hit, Setup};
 use bvhlab_geom::stats::median;
-use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_bvh::CostParams;
-use bvhlab_geom::load_scene;
 use bvhlab_layout::{build, Layout, LayoutSpec};
-use bvhlab_trace::{random_rays, Hit, Ray, TraceStats};
-use std::collections::BTreeMap;
+use bvhlab_trace::TraceStats;
 use std::time::Instant;
 
 /// CPU time of the calling thread in seconds (Linux schedstat, ns resolution), if readable.
 fn thread_cpu() -> Option<f64> {
     let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
     Some(s.split_whitespace().next()?.parse::<f64>().ok()? * 1e-9)
-}
-
-pub fn parse_spec(s: &str) -> Result<LayoutSpec, String> {
-    let (name, rest) = s.split_once(':').unwrap_or((s, ""));
-    let mut kv = BTreeMap::new();
-    for p in rest.split(',').filter(|p| !p.is_empty()) {
-        let (k, v) = p
-            .split_once('=')
-            .ok_or_else(|| format!("`{p}` in `{s}` is not k=v"))?;
-        kv.insert(k.to_string(), v.to_string());
-    }
-    LayoutSpec::parse(name, &kv)
 }
 
 /// (wall seconds, thread CPU seconds) of one trace.
@@ -50,36 +37,22 @@ fn timed(
     })
 }
 
+/// Memory, accuracy and trace time of layouts against bvh2.
+#[derive(clap::Parser)]
+struct Args {
+    #[arg(long, default_value_t = 2)]
+    leaf: u32,
+    #[command(flatten)]
+    run: common::RunArgs,
+    /// Scenes (a path or `gen:...`), then layouts (`name` or `name:k=v,...`).
+    #[arg(required = true, num_args = 2..)]
+    items: Vec<String>,
+}
+
 fn main() {
-    let mut leaf = 2u32;
-    let mut n_rays = 100_000usize;
-    let mut rounds = 5usize;
-    let mut threads = 1usize;
-    let mut scenes = Vec::new();
-    let mut specs = Vec::new();
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        let mut num = |name: &str| -> usize {
-            args.next()
-                .and_then(|v| v.parse().ok())
-                .filter(|&v: &usize| v > 0)
-                .unwrap_or_else(|| panic!("{name} needs a positive integer"))
-        };
-        match a.as_str() {
-            "--leaf" => leaf = num("--leaf") as u32,
-            "--rays" => n_rays = num("--rays"),
-            "--rounds" => rounds = num("--rounds"),
-            "--threads" => threads = num("--threads"),
-            s if s.starts_with("gen:") || s.contains(".obj") || s.contains('/') => {
-                scenes.push(s.to_string())
-            }
-            s => specs.push(parse_spec(s).unwrap_or_else(|e| panic!("{e}"))),
-        }
-    }
-    if scenes.is_empty() || specs.is_empty() {
-        eprintln!("usage: layout_bench [--leaf 2] [--rays 100000] [--rounds 5] [--threads 1] SCENE... SPEC...");
-        std::process::exit(2);
-    }
+    let a = <Args as clap::Parser>::parse();
+    let (leaf, n_rays, rounds, threads) = (a.leaf, a.run.rays, a.run.rounds, a.run.threads);
+    let (scenes, specs) = common::scenes_and_layouts(&a.items);
     let mut b = rayon::ThreadPoolBuilder::new().num_threads(threads);
     if threads == 1 {
         b = b.use_current_thread();
@@ -94,30 +67,9 @@ fn main() {
     );
     for path in &scenes {
         let t0 = Instant::now();
-        let scene = load_scene(path).unwrap_or_else(|e| panic!("{path}: {e:?}"));
+        let Setup { name, scene, bvh, rays } = Setup::new(path, leaf, n_rays, 42);
         let tris = &scene.triangles;
-        let (boxes, centers) = scene.boxes_and_centers();
-        let bvh = binned_sah::build(
-            &boxes,
-            &centers,
-            16,
-            &TopDownConfig {
-                leaf,
-                ..Default::default()
-            },
-        );
-        let bounds = scene.bounds();
-        let radius = bounds.enclosing_radius(centers.iter().copied());
-        let rays: Vec<Ray> = random_rays(&bounds, radius, n_rays, 42);
-        let name = std::path::Path::new(path)
-            .file_name()
-            .map(|s| {
-                s.to_string_lossy()
-                    .replace(".obj.gz", "")
-                    .replace(".obj", "")
-            })
-            .unwrap_or_else(|| path.clone());
-        let bvh2 = build(&parse_spec("bvh2").unwrap(), &bvh, tris).unwrap();
+        let bvh2 = build(&LayoutSpec::from_spec("bvh2").unwrap(), &bvh, tris).unwrap();
         let exact_sah = bvh2.sah_cost(cost);
         let nt = tris.len().max(1) as f64;
         let m2 = bvh2.memory();
@@ -157,15 +109,11 @@ fn main() {
                 stats.get_or_insert((sl, s2));
             }
             let (sl, s2) = stats.unwrap();
-            let same = |a: &Hit, b: &Hit| {
-                a.prim == b.prim
-                    || (a.is_hit() && b.is_hit() && (a.t - b.t).abs() <= 1e-6 * b.t.abs())
-            };
             let diff = sl
                 .hits
                 .iter()
                 .zip(&s2.hits)
-                .filter(|(a, b)| !same(a, b))
+                .filter(|(a, b)| !same_hit(a, b))
                 .count();
             let per_ray = |a: u64, b: u64| (a as f64 - b as f64) / rays.len().max(1) as f64;
             let (ml, m2w) = (median(&wl), median(&w2));

@@ -7,55 +7,28 @@
 //! random rays as in tests/common, brute force ONCE (parallel), then every layout is built,
 //! validated and traced, and its hits compared with brute force (same triangle, or t within 1e-6
 //! relative). One line per (scene, layout): differences (must be 0), validation, times.
-use bvhlab_builders::{binned_sah, TopDownConfig};
-use bvhlab_geom::load_scene;
-use bvhlab_layout::{build, LayoutSpec};
-use bvhlab_trace::{brute_force, random_rays, Hit};
-use std::collections::BTreeMap;
+mod common;
+use common::{same_hit, Setup};
+use bvhlab_layout::build;
+use bvhlab_trace::brute_force;
 use std::time::Instant;
 
-fn parse_spec(s: &str) -> Result<LayoutSpec, String> {
-    let (name, rest) = s.split_once(':').unwrap_or((s, ""));
-    let mut kv = BTreeMap::new();
-    for p in rest.split(',').filter(|p| !p.is_empty()) {
-        let (k, v) = p
-            .split_once('=')
-            .ok_or_else(|| format!("`{p}` in `{s}` is not k=v"))?;
-        kv.insert(k.to_string(), v.to_string());
-    }
-    LayoutSpec::parse(name, &kv)
-}
-
-fn same_hit(g: &Hit, w: &Hit) -> bool {
-    g.prim == w.prim || (g.is_hit() && w.is_hit() && (g.t - w.t).abs() <= 1e-6 * w.t.abs())
+/// Exactness of every layout against brute force.
+#[derive(clap::Parser)]
+struct Args {
+    #[arg(long, default_value_t = 2)]
+    leaf: u32,
+    #[arg(long, default_value_t = 100_000)]
+    rays: usize,
+    /// Scenes (a path or `gen:...`), then layouts (`name` or `name:k=v,...`).
+    #[arg(required = true, num_args = 2..)]
+    items: Vec<String>,
 }
 
 fn main() {
-    let mut leaf = 2u32;
-    let mut n_rays = 100_000usize;
-    let mut scenes = Vec::new();
-    let mut specs = Vec::new();
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        let mut num = |name: &str| -> usize {
-            args.next()
-                .and_then(|v| v.parse().ok())
-                .filter(|&v: &usize| v > 0)
-                .unwrap_or_else(|| panic!("{name} needs a positive integer"))
-        };
-        match a.as_str() {
-            "--leaf" => leaf = num("--leaf") as u32,
-            "--rays" => n_rays = num("--rays"),
-            s if s.starts_with("gen:") || s.contains(".obj") || s.contains('/') => {
-                scenes.push(s.to_string())
-            }
-            s => specs.push(parse_spec(s).unwrap_or_else(|e| panic!("{e}"))),
-        }
-    }
-    if scenes.is_empty() || specs.is_empty() {
-        eprintln!("usage: layout_exact [--leaf 2] [--rays 100000] SCENE... SPEC...");
-        std::process::exit(2);
-    }
+    let a = <Args as clap::Parser>::parse();
+    let (leaf, n_rays) = (a.leaf, a.rays);
+    let (scenes, specs) = common::scenes_and_layouts(&a.items);
     println!("# leaf={leaf} rays={n_rays}; diff = rays whose closest hit differs from brute force");
     println!(
         "{:<24} {:<56} {:>6} {:>9} {:>8} {:>8} validate",
@@ -64,31 +37,10 @@ fn main() {
     let mut total_diff = 0usize;
     let mut failures = 0usize;
     for path in &scenes {
-        let scene = load_scene(path).unwrap_or_else(|e| panic!("{path}: {e:?}"));
+        let Setup { name, scene, bvh, rays } = Setup::new(path, leaf, n_rays, 7);
         let tris = &scene.triangles;
-        let (boxes, centers) = scene.boxes_and_centers();
-        let bvh = binned_sah::build(
-            &boxes,
-            &centers,
-            16,
-            &TopDownConfig {
-                leaf,
-                ..Default::default()
-            },
-        );
-        let b = scene.bounds();
-        let radius = b.enclosing_radius(centers.iter().copied());
-        let rays = random_rays(&b, radius, n_rays, 7);
         let t = Instant::now();
         let want = brute_force(tris, &rays);
-        let name = std::path::Path::new(path)
-            .file_name()
-            .map(|s| {
-                s.to_string_lossy()
-                    .replace(".obj.gz", "")
-                    .replace(".obj", "")
-            })
-            .unwrap_or_else(|| path.clone());
         eprintln!(
             "{name}: {} tris, brute force {:.1} s",
             tris.len(),

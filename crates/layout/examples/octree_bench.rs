@@ -10,18 +10,14 @@
 //! (must be 0).
 //! `--sweep`: Kilian 4.1.4: mult_threshold 1.3..2.4 (prim_threshold 20) and prim_threshold 5..35
 //! (mult 2.0): nodes, references, octree and octree_1bit (16 B bfs) topology bytes, trace time.
+mod common;
+use common::{same_hit, Setup};
 use bvhlab_geom::stats::median;
-use bvhlab_builders::{binned_sah, TopDownConfig};
-use bvhlab_geom::load_scene;
 use bvhlab_layout::octree::{self, Octree};
 use bvhlab_layout::octree_1bit::{self, Fill, Octree1Bit};
 use bvhlab_layout::{bvh2::Bvh2, Memory};
-use bvhlab_trace::{random_rays, Hit, Ray, TraceStats};
+use bvhlab_trace::{Ray, TraceStats};
 use std::time::Instant;
-
-fn same_hit(g: &Hit, w: &Hit) -> bool {
-    g.prim == w.prim || (g.is_hit() && w.is_hit() && (g.t - w.t).abs() <= 1e-6 * w.t.abs())
-}
 
 type Tracer<'a> = (String, Box<dyn Fn(&[Ray]) -> TraceStats + Sync + 'a>);
 
@@ -71,35 +67,31 @@ fn octree_cfg(kv: &[(String, String)]) -> octree::Config {
     c
 }
 
+/// Octree layouts against a binned-SAH bvh2.
+#[derive(clap::Parser)]
+struct Args {
+    #[command(flatten)]
+    run: common::RunArgs,
+    /// Kilian 4.1.4's threshold sweep instead of the default comparison.
+    #[arg(long)]
+    sweep: bool,
+    /// Every chunk size of octree_1bit, not only 16 B.
+    #[arg(long)]
+    all_chunks: bool,
+    /// Octree parameters `k=v,...` (prim_threshold, mult_threshold, max_depth, overlap).
+    #[arg(long, value_delimiter = ',')]
+    kv: Vec<String>,
+    #[arg(required = true)]
+    scenes: Vec<String>,
+}
+
 fn main() {
-    let (mut n_rays, mut rounds, mut threads) = (100_000usize, 5usize, 1usize);
-    let (mut sweep, mut all_chunks) = (false, false);
-    let mut kv: Vec<(String, String)> = Vec::new();
-    let mut scenes = Vec::new();
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        let mut num = |name: &str| -> usize {
-            args.next()
-                .and_then(|v| v.parse().ok())
-                .filter(|&v: &usize| v > 0)
-                .unwrap_or_else(|| panic!("{name} needs a positive integer"))
-        };
-        match a.as_str() {
-            "--rays" => n_rays = num("--rays"),
-            "--rounds" => rounds = num("--rounds"),
-            "--threads" => threads = num("--threads"),
-            "--sweep" => sweep = true,
-            "--all-chunks" => all_chunks = true,
-            "--kv" => {
-                let s = args.next().expect("--kv k=v,...");
-                for p in s.split(',') {
-                    let (k, v) = p.split_once('=').expect("k=v");
-                    kv.push((k.into(), v.into()));
-                }
-            }
-            s => scenes.push(s.to_string()),
-        }
-    }
+    let a = <Args as clap::Parser>::parse();
+    let (n_rays, rounds, threads, sweep, all_chunks, scenes) = (a.run.rays, a.run.rounds, a.run.threads, a.sweep, a.all_chunks, a.scenes);
+    let kv: Vec<(String, String)> = a.kv.iter().map(|p| {
+        let (k, v) = p.split_once('=').expect("--kv takes k=v,...");
+        (k.to_string(), v.to_string())
+    }).collect();
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -109,23 +101,9 @@ fn main() {
         "# octree_bench rays={n_rays} rounds={rounds} threads={threads} octree={base:?} (times: median wall ms)"
     );
     for spec in &scenes {
-        let scene = load_scene(spec).unwrap_or_else(|e| panic!("{spec}: {e}"));
-        let tris = &scene.triangles;
-        let name = spec.rsplit('/').next().unwrap().trim_end_matches(".obj.gz");
-        let (boxes, centers) = scene.boxes_and_centers();
-        let bvh = binned_sah::build(
-            &boxes,
-            &centers,
-            16,
-            &TopDownConfig {
-                leaf: 2,
-                ..Default::default()
-            },
-        );
+        let Setup { name, scene, bvh, rays } = Setup::new(spec, 2, n_rays, 42);
+        let (name, tris) = (name.as_str(), &scene.triangles);
         let bvh2 = Bvh2::build(&bvh);
-        let b = scene.bounds();
-        let radius = b.enclosing_radius(centers.iter().copied());
-        let rays = random_rays(&b, radius, n_rays, 42);
         if sweep {
             run_sweep(&pool, name, tris, &bvh2, &rays, rounds);
             continue;

@@ -7,13 +7,15 @@
 //!   the chunks, an exact box per chunk root; quantization `frame` = parent box or chunk-root box;
 //! - `octree`: Kilian 4.1: 32-bit nodes, implicit boxes, primitive references may repeat;
 //! - `octree_1bit`: Kilian 4.2: the same octree as a 1-bit breadth-first bit field in chunks;
-//! - `bvh4`, `bvh8`: the BVH collapsed into 4-/8-wide nodes (Wald et al. 2008), SoA boxes, SIMD box tests.
+//! - `bvh4`, `bvh8`: the BVH collapsed into 4-/8-wide nodes (Wald et al. 2008), SoA boxes, SIMD box tests;
+//! - `cwbvh`: `bvh8` in Ylitie et al. 2017's compressed 80-byte nodes (8-bit child boxes on a per-node grid).
 //!
 //! Every layout must find exactly the closest hit brute force finds (conservative boxes, the shared
 //! triangle test and tie rule of `bvhlab_trace`). Algorithms here are plain functions over slices:
 //! no files, hashing or caching (that is the pipeline's job).
 pub mod bvh2;
 pub mod chunks;
+pub mod cwbvh;
 pub mod octree;
 pub mod octree_1bit;
 pub mod qbvh_chunks;
@@ -29,23 +31,25 @@ use std::collections::BTreeMap;
 /// The layouts as they describe themselves (name, paper reference, typed parameters): the
 /// pipeline's method table lists these (and adds `auto`, a search over them). A new layout adds its
 /// entry here and its arms to the dispatches below.
-pub const METHODS: [&Method; 6] = [
+pub const METHODS: [&Method; 7] = [
     &bvh2::METHOD,
     &qbvh_chunks::METHOD,
     &octree::METHOD,
     &octree_1bit::METHOD,
     &wide::METHOD4,
     &wide::METHOD8,
+    &cwbvh::METHOD,
 ];
 
 /// Layout names accepted by `build`.
-pub const LAYOUTS: [&str; 6] = [
+pub const LAYOUTS: [&str; 7] = [
     METHODS[0].name,
     METHODS[1].name,
     METHODS[2].name,
     METHODS[3].name,
     METHODS[4].name,
     METHODS[5].name,
+    METHODS[6].name,
 ];
 
 /// What a layout costs in memory. "Topology" is Kilian's *size of topology* (6.2): everything
@@ -100,6 +104,17 @@ pub fn renamed(name: &str) -> Option<String> {
 }
 
 impl LayoutSpec {
+    /// Parses `name` or `name:k=v,k=v` (as the examples and benchmarks take it) with [`Self::parse`].
+    pub fn from_spec(spec: &str) -> Result<LayoutSpec, String> {
+        let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
+        let mut kv = BTreeMap::new();
+        for p in rest.split(',').filter(|p| !p.is_empty()) {
+            let (k, v) = p.split_once('=').ok_or_else(|| format!("`{p}` in `{spec}` is not k=v"))?;
+            kv.insert(k.to_string(), v.to_string());
+        }
+        LayoutSpec::parse(name, &kv)
+    }
+
     /// Validates `name` and `params` against [`METHODS`] (unknown names and bad values are errors
     /// naming the valid choices) and fills in defaults. Values keep their spelling (trimmed): the
     /// layout stage has been keyed by them as written (`mult_threshold=2.0`).
@@ -170,6 +185,7 @@ pub enum Layout {
     Octree1Bit(octree_1bit::Octree1Bit),
     /// `bvh4` or `bvh8` (by its width).
     Wide(wide::WideBvh),
+    Cw(cwbvh::CwBvh),
 }
 
 /// Start of the error of a build given up at its deadline (`build_until`).
@@ -194,6 +210,7 @@ pub fn build_until(
         "bvh2" => Layout::Bvh2(bvh2::Bvh2::build(bvh)),
         "bvh4" => Layout::Wide(wide::WideBvh::build(bvh, 4)?),
         "bvh8" => Layout::Wide(wide::WideBvh::build(bvh, 8)?),
+        "cwbvh" => Layout::Cw(cwbvh::CwBvh::build(bvh)?),
         "qbvh_chunks" => Layout::QbvhChunks(qbvh_chunks::QbvhChunks::build(bvh, &qbvh_chunks::Config::from_spec(spec)?)?),
         "octree" => Layout::Octree(octree::Octree::build_until(
             tris,
@@ -217,7 +234,7 @@ pub fn build_until(
 /// Whether a layout's structure depends on the input BVH (octrees are built from the scene alone,
 /// so the pipeline keys them by the scene only).
 pub fn uses_bvh(name: &str) -> bool {
-    matches!(name, "bvh2" | "qbvh_chunks" | "bvh4" | "bvh8")
+    matches!(name, "bvh2" | "qbvh_chunks" | "bvh4" | "bvh8" | "cwbvh")
 }
 
 impl Layout {
@@ -229,6 +246,7 @@ impl Layout {
             Layout::Octree1Bit(_) => "octree_1bit",
             Layout::Wide(w) if w.width == 4 => "bvh4",
             Layout::Wide(_) => "bvh8",
+            Layout::Cw(_) => "cwbvh",
         }
     }
 
@@ -239,6 +257,7 @@ impl Layout {
             Layout::Octree(l) => l.memory(),
             Layout::Octree1Bit(l) => l.memory(),
             Layout::Wide(l) => l.memory(),
+            Layout::Cw(l) => l.memory(),
         }
     }
 
@@ -251,6 +270,7 @@ impl Layout {
             Layout::Octree(l) => l.trace(tris, rays),
             Layout::Octree1Bit(l) => l.trace(tris, rays),
             Layout::Wide(l) => l.trace(tris, rays),
+            Layout::Cw(l) => l.trace(tris, rays),
         }
     }
 
@@ -261,6 +281,7 @@ impl Layout {
         match self {
             Layout::Bvh2(l) => Timed::Bvh2(bvhlab_trace::FastBvh2::new(&l.bvh, tris)),
             Layout::Wide(w) => Timed::Wide(w, bvhlab_trace::TriStore::new(&w.prim_indices, tris)),
+            Layout::Cw(c) => Timed::Cw(c, bvhlab_trace::TriStore::new(&c.prim_indices, tris)),
             other => Timed::Exact(other),
         }
     }
@@ -274,6 +295,7 @@ impl Layout {
             Layout::Octree(l) => l.sah_cost(cost),
             Layout::Octree1Bit(l) => l.sah_cost(cost),
             Layout::Wide(l) => l.sah_cost(cost),
+            Layout::Cw(l) => l.sah_cost(cost),
         }
     }
 
@@ -295,6 +317,7 @@ impl Layout {
             Layout::Octree(l) => l.validate(tris),
             Layout::Octree1Bit(l) => l.validate(tris),
             Layout::Wide(l) => l.validate_refs(tris, refs),
+            Layout::Cw(l) => l.validate_refs(tris, refs),
         }
     }
 
@@ -304,6 +327,7 @@ impl Layout {
     pub fn uncompressed(&self, bvh: &Bvh, tris: &[Triangle]) -> Option<Layout> {
         match self {
             Layout::Bvh2(_) | Layout::Octree(_) | Layout::Wide(_) => None,
+            Layout::Cw(_) => Some(Layout::Wide(wide::WideBvh::build(bvh, 8).ok()?)),
             Layout::QbvhChunks(_) => Some(Layout::Bvh2(bvh2::Bvh2::build(bvh))),
             Layout::Octree1Bit(l) => l.uncompressed(tris).map(Layout::Octree),
         }
@@ -314,6 +338,7 @@ impl Layout {
 pub enum Timed<'a> {
     Bvh2(bvhlab_trace::FastBvh2<'a>),
     Wide(&'a wide::WideBvh, bvhlab_trace::TriStore),
+    Cw(&'a cwbvh::CwBvh, bvhlab_trace::TriStore),
     Exact(&'a Layout),
 }
 
@@ -323,6 +348,7 @@ impl Timed<'_> {
         match self {
             Timed::Bvh2(f) => f.hits(rays),
             Timed::Wide(w, store) => w.hits(store, rays),
+            Timed::Cw(c, store) => c.hits(store, rays),
             Timed::Exact(l) => l.trace(tris, rays).hits,
         }
     }

@@ -221,6 +221,17 @@ impl WideBvh {
     /// referenced from several leaves, each of whose boxes holds a clipped part of it (so it
     /// overlaps the triangle's box rather than containing it), as `bvhlab_bvh::validate_split`.
     pub fn validate_refs(&self, tris: &[Triangle], refs_kind: Refs) -> Result<(), String> {
+        self.check(tris, refs_kind, true)
+    }
+
+    /// [`Self::validate_refs`] without nesting (child boxes inside their parent slot's box):
+    /// instead every slot's box must hold (`Refs::Unique`) or meet (`Refs::Split`) everything its
+    /// subtree's leaves hold. For quantized boxes laid on each node's exact box ([`crate::cwbvh`]).
+    pub fn validate_unnested(&self, tris: &[Triangle], refs_kind: Refs) -> Result<(), String> {
+        self.check(tris, refs_kind, false)
+    }
+
+    fn check(&self, tris: &[Triangle], refs_kind: Refs, nested: bool) -> Result<(), String> {
         let split = refs_kind == Refs::Split;
         let wd = self.width as usize;
         if self.nodes() == 0 {
@@ -236,7 +247,9 @@ impl WideBvh {
         let mut slot_used = vec![false; self.prim_indices.len()];
         let mut stack = vec![(0usize, self.root_bounds)];
         seen_node[0] = true;
+        let mut order = Vec::with_capacity(self.nodes());
         while let Some((n, parent)) = stack.pop() {
+            order.push(n);
             let mut any = false;
             for s in 0..wd {
                 let (code, b) = self.child(n, s);
@@ -247,7 +260,7 @@ impl WideBvh {
                     continue;
                 }
                 any = true;
-                if !parent.contains(&b) {
+                if nested && !parent.contains(&b) {
                     return Err(format!("node {n} slot {s}: child box outside its parent's"));
                 }
                 if code & LEAF_BIT == 0 {
@@ -298,6 +311,42 @@ impl WideBvh {
         if let Some(p) = refs.iter().position(|&r| if split { r == 0 } else { r != 1 }) {
             return Err(format!("triangle {p} referenced {} times", refs[p]));
         }
+        if !nested {
+            self.check_subtrees(tris, split, &order)?;
+        }
+        Ok(())
+    }
+
+    /// Every slot's box against what its subtree's leaves hold (triangle boxes; with `split`, the
+    /// parts of them inside their leaf boxes, which the slot box must meet), children before
+    /// parents (`order` is the nodes in visiting order, parents first).
+    fn check_subtrees(&self, tris: &[Triangle], split: bool, order: &[usize]) -> Result<(), String> {
+        let mut reach = vec![Aabb::EMPTY; self.nodes()];
+        for &n in order.iter().rev() {
+            let mut all = Aabb::EMPTY;
+            for s in 0..self.width as usize {
+                let (code, b) = self.child(n, s);
+                let below = match code {
+                    EMPTY => continue,
+                    c if c & LEAF_BIT == 0 => reach[c as usize],
+                    c => {
+                        let [first, count] = self.leaves[(c & !LEAF_BIT) as usize];
+                        let ids = &self.prim_indices[first as usize..(first + count) as usize];
+                        ids.iter().fold(Aabb::EMPTY, |u, &p| {
+                            let t = tris[p as usize].bounds();
+                            let part = if split { Aabb { min: t.min.max(b.min), max: t.max.min(b.max) } } else { t };
+                            u.union(&part)
+                        })
+                    }
+                };
+                let ok = if split { below.is_empty() || (0..3).all(|k| b.min[k] <= below.max[k] && below.min[k] <= b.max[k]) } else { b.contains(&below) };
+                if !ok {
+                    return Err(format!("node {n} slot {s}: box does not hold its subtree"));
+                }
+                all = all.union(&below);
+            }
+            reach[n] = all;
+        }
         Ok(())
     }
 
@@ -305,11 +354,12 @@ impl WideBvh {
     /// untimed). Steps = wide nodes and leaves entered; tests = triangle tests.
     pub fn trace(&self, tris: &[Triangle], rays: &[Ray]) -> TraceStats {
         let store = TriStore::new(&self.prim_indices, tris);
-        let v = self.view(&store);
-        bvhlab_trace::trace_with(rays, Stack::new, |stack, ray| match self.width {
-            4 => v.one::<4, Exact, Scalar, true>(ray, stack),
-            _ => v.one::<8, Exact, Scalar, true>(ray, stack),
-        })
+        let plain = self.plain();
+        let v = View { src: &plain, leaves: &self.leaves, tris: &store.tris, root: self.root_bounds, nodes: self.nodes() };
+        match self.width {
+            4 => trace_view::<4, _>(&v, rays),
+            _ => trace_view::<8, _>(&v, rays),
+        }
     }
 
     /// The timed path: hits only, the watertight f32 test, the SIMD box test.
@@ -319,35 +369,22 @@ impl WideBvh {
 
     /// Hits with the triangle test `T` and the box test `simd` (tests check every combination).
     pub fn hits_with<T: TriTest>(&self, store: &TriStore, rays: &[Ray], simd: Simd) -> Vec<Hit> {
-        let v = self.view(store);
-        let simd = simd.resolve(self.width);
-        let mut hits = vec![Hit::NONE; rays.len()];
-        use rayon::prelude::*;
-        hits.par_chunks_mut(1024)
-            .zip(rays.par_chunks(1024))
-            .for_each_init(Stack::new, |stack, (h, r)| match (self.width, simd) {
-                #[cfg(target_arch = "x86_64")]
-                // SAFETY: `resolve` picks Avx2 only when the CPU has AVX2.
-                (8, Simd::Avx2) => unsafe { chunk_avx8::<T>(&v, r, h, stack) },
-                #[cfg(target_arch = "x86_64")]
-                (4, Simd::Sse) => chunk::<4, T, Sse4>(&v, r, h, stack),
-                (4, _) => chunk::<4, T, Scalar>(&v, r, h, stack),
-                _ => chunk::<8, T, Scalar>(&v, r, h, stack),
-            });
-        hits
+        let plain = self.plain();
+        let v = View { src: &plain, leaves: &self.leaves, tris: &store.tris, root: self.root_bounds, nodes: self.nodes() };
+        match self.width {
+            4 => hits_view4::<T, _>(&v, rays, simd.resolve(4)),
+            _ => hits_view8::<T, _>(&v, rays, simd.resolve(8)),
+        }
     }
 
-    fn view<'a>(&'a self, store: &'a TriStore) -> View<'a> {
+    fn plain(&self) -> Plain<'_> {
         // SAFETY: f32 and u32 have the same size and alignment; every bit pattern is a valid f32.
         let f = unsafe { std::slice::from_raw_parts(self.data.as_ptr() as *const f32, self.data.len()) };
-        View {
-            f,
-            data: &self.data,
-            leaves: &self.leaves,
-            tris: &store.tris,
-            root: self.root_bounds,
-            nodes: self.nodes(),
-        }
+        let wd = self.width as usize;
+        let used = self.data.chunks_exact(7 * wd).map(|node| {
+            node[6 * wd..].iter().enumerate().fold(0u8, |m, (i, &c)| m | (((c != EMPTY) as u8) << i))
+        });
+        Plain { f, data: &self.data, used: used.collect() }
     }
 }
 
@@ -362,7 +399,7 @@ pub enum Simd {
 }
 
 impl Simd {
-    fn resolve(self, width: u32) -> Simd {
+    pub(crate) fn resolve(self, width: u32) -> Simd {
         #[cfg(target_arch = "x86_64")]
         {
             let avx2 = std::is_x86_feature_detected!("avx2");
@@ -380,15 +417,48 @@ impl Simd {
     }
 }
 
+/// Where the traversal reads a wide node: its six box rows (`W` floats each) and which slots hold
+/// a child; and a child slot's code. [`WideBvh`] hands out its rows in place; the compressed
+/// [`crate::cwbvh`] node decodes them into `buf` first.
+pub(crate) trait NodeSource<const W: usize> {
+    type Buf;
+    fn buf() -> Self::Buf;
+    /// Box rows and used-slot mask of node `n` (None: out of range, a malformed layout).
+    fn node<'a>(&'a self, n: usize, buf: &'a mut Self::Buf) -> Option<(&'a [f32], u32)>;
+    /// Child code of `slot` of node `n` (inner: node index; leaf: `LEAF_BIT | leaf index`).
+    fn code(&self, n: usize, slot: usize) -> u32;
+}
+
+/// The traversal's view of a wide BVH: its nodes and the triangles in leaf-slot order.
 #[derive(Clone, Copy)]
-struct View<'a> {
-    /// `data` as f32 (the box rows).
+pub(crate) struct View<'a, N> {
+    pub src: &'a N,
+    pub leaves: &'a [[u32; 2]],
+    pub tris: &'a [WTri],
+    pub root: Aabb,
+    pub nodes: usize,
+}
+
+/// [`WideBvh`]'s rows in place: `data` as f32 (the box rows) and the codes row; the used-slot
+/// mask per node (computed once per trace call, not per visit).
+pub(crate) struct Plain<'a> {
     f: &'a [f32],
     data: &'a [u32],
-    leaves: &'a [[u32; 2]],
-    tris: &'a [WTri],
-    root: Aabb,
-    nodes: usize,
+    used: Vec<u8>,
+}
+
+impl<const W: usize> NodeSource<W> for Plain<'_> {
+    type Buf = ();
+    fn buf() {}
+    #[inline(always)]
+    fn node<'a>(&'a self, n: usize, _: &'a mut ()) -> Option<(&'a [f32], u32)> {
+        let base = n * 7 * W;
+        Some((self.f.get(base..base + 6 * W)?, *self.used.get(n)? as u32))
+    }
+    #[inline(always)]
+    fn code(&self, n: usize, slot: usize) -> u32 {
+        self.data[n * 7 * W + 6 * W + slot]
+    }
 }
 
 /// All children's slab tests of one node at once: entry distances into `dist`, a bit per child hit.
@@ -471,30 +541,69 @@ impl WideBox<8> for Avx8 {
 }
 
 /// Parallel rays (a zero direction component): every child through `RayBox::hit`, which is exact
-/// for them; empty slots skipped by code (`RayBox` sees the empty box as unbounded).
+/// for them (`RayBox` sees the empty box of an unused slot as unbounded: the traversal's used-slot
+/// mask drops those).
 struct Parallel;
 
+/// Closest hits with counters: the exact f64 triangle test, the scalar box test (the oracle).
+pub(crate) fn trace_view<const W: usize, N: NodeSource<W> + Sync>(v: &View<N>, rays: &[Ray]) -> TraceStats {
+    bvhlab_trace::trace_with(rays, Stack::new, |stack, ray| v.one::<W, Exact, Scalar, true>(ray, stack))
+}
+
+/// The timed path of an 8-wide node source: hits only, the AVX2 box test when `simd` says so.
+pub(crate) fn hits_view8<T: TriTest, N: NodeSource<8> + Sync>(v: &View<N>, rays: &[Ray], simd: Simd) -> Vec<Hit> {
+    par_hits(rays, |r, h, stack| match simd {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `Simd::resolve` picks Avx2 only when the CPU has AVX2.
+        Simd::Avx2 => unsafe { chunk_avx8::<T, N>(v, r, h, stack) },
+        _ => chunk::<8, T, N, Scalar>(v, r, h, stack),
+    })
+}
+
+/// The timed path of a 4-wide node source: hits only, the SSE box test when `simd` says so.
+pub(crate) fn hits_view4<T: TriTest, N: NodeSource<4> + Sync>(v: &View<N>, rays: &[Ray], simd: Simd) -> Vec<Hit> {
+    par_hits(rays, |r, h, stack| match simd {
+        #[cfg(target_arch = "x86_64")]
+        Simd::Sse => chunk::<4, T, N, Sse4>(v, r, h, stack),
+        _ => chunk::<4, T, N, Scalar>(v, r, h, stack),
+    })
+}
+
+/// Rays traced in parallel in chunks of 1024 (one stack per worker), hits in ray order.
+fn par_hits(rays: &[Ray], f: impl Fn(&[Ray], &mut [Hit], &mut Stack) + Sync) -> Vec<Hit> {
+    use rayon::prelude::*;
+    let mut hits = vec![Hit::NONE; rays.len()];
+    hits.par_chunks_mut(1024)
+        .zip(rays.par_chunks(1024))
+        .for_each_init(Stack::new, |stack, (h, r)| f(r, h, stack));
+    hits
+}
+
 #[inline(always)]
-fn chunk<const W: usize, T: TriTest, B: WideBox<W>>(v: &View, rays: &[Ray], hits: &mut [Hit], stack: &mut Stack) {
+fn chunk<const W: usize, T: TriTest, N: NodeSource<W>, B: WideBox<W>>(v: &View<N>, rays: &[Ray], hits: &mut [Hit], stack: &mut Stack) {
     for (h, r) in hits.iter_mut().zip(rays) {
         *h = v.one::<W, T, B, false>(r, stack).0;
     }
 }
 
-/// The 8-wide chunk compiled with AVX2 so the box test's intrinsics inline.
+/// The 8-wide chunk compiled with AVX2 so the box test's intrinsics (and a compressed node's
+/// decoding) inline and vectorize.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn chunk_avx8<T: TriTest>(v: &View, rays: &[Ray], hits: &mut [Hit], stack: &mut Stack) {
-    chunk::<8, T, Avx8>(v, rays, hits, stack)
+unsafe fn chunk_avx8<T: TriTest, N: NodeSource<8>>(v: &View<N>, rays: &[Ray], hits: &mut [Hit], stack: &mut Stack) {
+    chunk::<8, T, N, Avx8>(v, rays, hits, stack)
 }
 
-impl View<'_> {
+impl<N> View<'_, N> {
     #[inline(always)]
     fn one<const W: usize, T: TriTest, B: WideBox<W>, const STATS: bool>(
         &self,
         ray: &Ray,
         stack: &mut Stack,
-    ) -> (Hit, u32, u32) {
+    ) -> (Hit, u32, u32)
+    where
+        N: NodeSource<W>,
+    {
         if self.nodes == 0 || ray.tmax.is_nan() || ray.tmax <= 0.0 {
             return (Hit::NONE, 0, 0);
         }
@@ -527,7 +636,10 @@ impl View<'_> {
         sr: &SlabRay,
         rb: Option<&RayBox>,
         stack: &mut Stack,
-    ) -> (Hit, u32, u32) {
+    ) -> (Hit, u32, u32)
+    where
+        N: NodeSource<W>,
+    {
         let mut best = Hit::within(ray.tmax);
         let (mut steps, mut tests) = (0u32, 0u32);
         // Prepared at the first leaf: many rays never reach one.
@@ -535,7 +647,7 @@ impl View<'_> {
         stack.clear();
         let mut cur = 0u32;
         let mut budget = self.nodes + self.leaves.len();
-        let stride = 7 * W;
+        let mut buf = N::buf();
         loop {
             if budget == 0 {
                 break;
@@ -545,16 +657,16 @@ impl View<'_> {
                 steps += 1;
             }
             if cur & LEAF_BIT == 0 {
-                let base = cur as usize * stride;
-                let Some(node) = self.f.get(base..base + stride) else { break };
+                let node = cur as usize;
+                let Some((rows, used)) = self.src.node(node, &mut buf) else { break };
                 let mut dist = [0f32; W];
-                let mask = B::sel(node, &self.data[base + 6 * W..base + 7 * W], sr, rb, best.t, &mut dist);
-                let codes = &self.data[base + 6 * W..base + 7 * W];
+                let mask = B::sel(rows, sr, rb, best.t, &mut dist) & used;
+                let code = |i: usize| self.src.code(node, i);
                 // (No count_ones: popcnt is not in the x86-64 baseline nor implied by AVX2.)
                 match mask {
                     0 => {}
                     m if m & (m - 1) == 0 => {
-                        cur = codes[m.trailing_zeros() as usize];
+                        cur = code(m.trailing_zeros() as usize);
                         continue;
                     }
                     _ => {
@@ -565,7 +677,7 @@ impl View<'_> {
                             let i = m.trailing_zeros() as usize;
                             m &= m - 1;
                             // Insertion by descending entry: the nearest ends up last.
-                            let e = (codes[i], dist[i]);
+                            let e = (code(i), dist[i]);
                             let mut j = n;
                             while j > 0 && items[j - 1].1 < e.1 {
                                 items[j] = items[j - 1];
@@ -604,15 +716,14 @@ impl View<'_> {
     }
 }
 
-/// A box test over a node given its rows and codes (the SIMD tests ignore the codes; the parallel
-/// test needs them to skip empty slots).
+/// A box test over a node given its rows (the traversal masks the slots not in use).
 trait BoxSel<const W: usize> {
-    fn sel(rows: &[f32], codes: &[u32], sr: &SlabRay, rb: Option<&RayBox>, tmax: f32, dist: &mut [f32; W]) -> u32;
+    fn sel(rows: &[f32], sr: &SlabRay, rb: Option<&RayBox>, tmax: f32, dist: &mut [f32; W]) -> u32;
 }
 
 impl<const W: usize, B: WideBox<W>> BoxSel<W> for B {
     #[inline(always)]
-    fn sel(rows: &[f32], _: &[u32], sr: &SlabRay, _: Option<&RayBox>, tmax: f32, dist: &mut [f32; W]) -> u32 {
+    fn sel(rows: &[f32], sr: &SlabRay, _: Option<&RayBox>, tmax: f32, dist: &mut [f32; W]) -> u32 {
         debug_assert!(rows.len() >= 6 * W);
         // SAFETY: rows holds at least 6 * W floats (a node's slice); the CPU feature of a SIMD `B`
         // was checked before its instantiation was called (`Simd::resolve`).
@@ -621,14 +732,11 @@ impl<const W: usize, B: WideBox<W>> BoxSel<W> for B {
 }
 
 impl<const W: usize> BoxSel<W> for Parallel {
-    fn sel(rows: &[f32], codes: &[u32], _: &SlabRay, rb: Option<&RayBox>, tmax: f32, dist: &mut [f32; W]) -> u32 {
+    fn sel(rows: &[f32], _: &SlabRay, rb: Option<&RayBox>, tmax: f32, dist: &mut [f32; W]) -> u32 {
         // Always given for parallel rays (`one`).
         let Some(rb) = rb else { return 0 };
         let mut mask = 0;
         for c in 0..W {
-            if codes[c] == EMPTY {
-                continue;
-            }
             let f = |row: usize| rows[row * W + c];
             let b = Aabb {
                 min: Vec3::new(f(0), f(1), f(2)),

@@ -589,7 +589,7 @@ pub fn node_seconds(
             "auto" => 15_000e-9 * t,
             "bvh2" => ns_per_tri(60.0),
             // Not measured yet: one pass over the binary tree like bvh2 plus the node rows.
-            "bvh4" | "bvh8" => ns_per_tri(100.0),
+            "bvh4" | "bvh8" | "cwbvh" => ns_per_tri(100.0),
             "qbvh_chunks" => ns_per_tri(360.0),
             _ => ns_per_tri(600.0),
         },
@@ -600,7 +600,7 @@ pub fn node_seconds(
                 None => base,
                 Some("bvh2") => 2.0 * base,
                 // Not measured yet: the untimed counting pass plus the fast timed runs.
-                Some("bvh4" | "bvh8") => 2.0 * base,
+                Some("bvh4" | "bvh8" | "cwbvh") => 2.0 * base,
                 Some("qbvh_chunks") => 3.3 * base,
                 Some("auto") => 2.7 * base,
                 Some(_) => 4.5 * base,

@@ -186,8 +186,9 @@ mod tests {
             )
             .chain(r.layouts.iter().map(|m| (m.name, m.reference, &m.params)))
             .collect();
-        // builders: 9 of bvhlab (with sbvh) + 4 peers; encoders; optimizers; layouts (with bvh4, bvh8).
-        assert_eq!(all.len(), 9 + 4 + 3 + 3 + 7);
+        // builders: 9 of bvhlab (with sbvh) + 4 peers; encoders; optimizers; layouts (with bvh4,
+        // bvh8, cwbvh) + auto.
+        assert_eq!(all.len(), 9 + 4 + 3 + 3 + 8);
         for (name, reference, params) in all {
             assert!(!reference.is_empty(), "{name}");
             for p in params.iter() {

@@ -10,7 +10,7 @@ pub const PAIRS: &[(&str, &str)] = &[
     ("binned-sah", "embree-binned"),
     ("lbvh", "embree-morton"),
     ("ploc", "obvhs"),
-    ("sweep-sah", "embree-sbvh"),
+    ("sbvh", "embree-sbvh"),
 ];
 
 /// The chain standing for a builder on a scene: the first without optimizer and layout in the
