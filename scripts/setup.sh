@@ -17,6 +17,8 @@ if [ ${#need[@]} -gt 0 ]; then
     echo "please install: ${need[*]}" >&2
   fi
 fi
+# The justfile's recipes (`just sweep`, `just peers`, ...): not packaged in Debian 12, so from
+# crates.io, pinned (about 2 minutes of compiling, once).
 if ! command -v just >/dev/null 2>&1; then
-  echo "note: 'just' is not installed; recipes in justfile can be run as plain cargo commands, or: cargo install just" >&2
+  cargo install --quiet --locked just --version 1.59.0
 fi

@@ -276,10 +276,16 @@ unsafe fn import(root: *const ENode, root_box: Aabb) -> Bvh {
         }
         let e = &*n;
         if e.leaf != 0 {
-            let first = out.prim_indices.len() as u32;
-            out.prim_indices
-                .extend_from_slice(std::slice::from_raw_parts(e.prims, e.count as usize));
-            out.nodes[slot] = Node::leaf(b, first, e.count);
+            let first = out.prim_indices.len();
+            // Spatial splits (HIGH) can leave two fragments of one triangle in the same leaf
+            // (measured: dragon, leaf 726489, triangle 96128): one reference serves both, as a
+            // tracer would keep it (bvhlab's invariant: at most one reference per leaf).
+            for &p in std::slice::from_raw_parts(e.prims, e.count as usize) {
+                if !out.prim_indices[first..].contains(&p) {
+                    out.prim_indices.push(p);
+                }
+            }
+            out.nodes[slot] = Node::leaf(b, first as u32, (out.prim_indices.len() - first) as u32);
         } else {
             let first = out.nodes.len();
             out.nodes.push(Node::leaf(b, 0, 1));
@@ -378,5 +384,40 @@ pub fn trace(tris: &[Triangle], rays: &[Ray], quality: Quality) -> Result<PeerTr
             seconds,
             setup_seconds: commit_seconds,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two fragments of one triangle in one leaf (what HIGH made on the dragon) become one reference.
+    #[test]
+    fn import_keeps_one_reference_per_leaf() {
+        let ids = [5u32, 7, 5, 9];
+        let leaf = |ids: &[u32]| ENode {
+            leaf: 1,
+            count: ids.len() as u32,
+            prims: ids.as_ptr(),
+            child: [std::ptr::null_mut(); 2],
+            bounds: [RTCBounds::default(); 2],
+        };
+        let mut a = leaf(&ids);
+        let mut b = leaf(&ids[3..]);
+        let root = ENode {
+            leaf: 0,
+            count: 2,
+            prims: std::ptr::null(),
+            child: [&mut a, &mut b],
+            bounds: [RTCBounds::default(); 2],
+        };
+        let bvh = unsafe { import(&root, Aabb::EMPTY) };
+        let leaves: Vec<&[u32]> = bvh
+            .nodes
+            .iter()
+            .filter(|n| n.is_leaf())
+            .map(|n| &bvh.prim_indices[n.first as usize..(n.first + n.count) as usize])
+            .collect();
+        assert_eq!(leaves, [&[5u32, 7, 9][..], &[9][..]]);
     }
 }

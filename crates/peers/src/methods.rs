@@ -50,7 +50,9 @@ pub const EMBREE_SBVH: Method = Method::new(
      references may repeat a triangle",
     "Embree 3.13; Stich et al. 2009; peer",
     EMBREE_PARAMS,
-);
+)
+// 2: a triangle's fragments in one leaf are imported as one reference.
+.with_version(2);
 
 const OBVHS_LIBRARY: ParamSpec = ParamSpec {
     name: "library",

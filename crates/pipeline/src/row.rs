@@ -47,6 +47,9 @@ pub struct ResultRow {
     pub bytes: u64,
     pub bytes_per_triangle: f64,
     pub valid: bool,
+    /// Why the chain is not `valid`: the first failing stage and its validation message.
+    #[serde(default)]
+    pub invalid_reason: Option<String>,
     pub bvh_hash: String,
     pub build_seconds: f64,
     /// (max - min) / median of the build runs (`stats::spread`): the noise of `build_seconds`. None

@@ -275,6 +275,14 @@ pub(crate) fn row(rt: &mut Runner, plan: &Plan, experiment: &str) -> Result<Resu
             && optimized.as_ref().is_none_or(|o| o.valid)
             && fin.valid
             && layout.as_ref().is_none_or(|l| l.valid),
+        invalid_reason: [
+            ("build", build.invalid_reason.as_ref()),
+            ("optimize", optimized.as_ref().and_then(|o| o.invalid_reason.as_ref())),
+            ("compact", fin.invalid_reason.as_ref()),
+            ("layout", layout.as_ref().and_then(|l| l.invalid_reason.as_ref())),
+        ]
+        .into_iter()
+        .find_map(|(stage, r)| r.map(|r| format!("{stage}: {r}"))),
         bvh_hash: fin.bvh_hash.clone(),
         build_seconds: build.median_seconds,
         encoder: plan.encoder.as_ref().map(|e| e.encoder.clone()),

@@ -133,12 +133,12 @@ pub fn invalid_box(invalid: &[(&ResultRow, usize)]) -> Markup {
                  are not trustworthy; they are red in every table below."
             }
             table {
-                tr { th{"scene"} th{"method"} th{"builder"} th{"build params"} th{"encoder"} th{"encode params"} th{"compact"} th{"rows"} }
+                tr { th{"scene"} th{"method"} th{"builder"} th{"build params"} th{"encoder"} th{"encode params"} th{"compact"} th{"rows"} th{"reason"} }
                 @for (r, n) in invalid {
                     tr.invalid {
                         td { (r.scene_name) } td { (r.method) } td { (r.builder) } td { (r.build_params) }
                         td { (r.encoder.as_deref().unwrap_or("")) } td { (r.encode_params.as_deref().unwrap_or("")) }
-                        td { (r.compact) } td.n { (n) }
+                        td { (r.compact) } td.n { (n) } td { (r.invalid_reason.as_deref().unwrap_or("")) }
                     }
                 }
             }
