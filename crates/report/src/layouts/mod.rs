@@ -105,10 +105,12 @@ pub(crate) fn section(rows: &[ResultRow], plot: &mut PlotFn, problems: &mut Vec<
     Some(Section {
         id: "layouts",
         title: "Compressed layouts (Kilian 2021)".into(),
-        intro: "Layout stage: bvh2 (flat 32-byte nodes), qbvh_chunks (quantized boxes, 1-bit topology in chunks; Kilian 5.2), \
-                octree (32-bit nodes; 4.1) and octree_1bit (1-bit octree in chunks; 4.2). Per scene (and chain and ray set): \
-                bytes per triangle (topology, total) against trace time and slowdown vs bvh2, and against the extra \
-                triangle tests and box hits quantization costs; one curve per layout family (a layout with every \
+        intro: "Layout stage: bvh2 (flat 32-byte nodes), bvh4 and bvh8 (4-/8-wide nodes, SIMD box tests), cwbvh (bvh8 in \
+                80-byte nodes with 8-bit child boxes; Ylitie et al. 2017), qbvh_chunks (quantized boxes, 1-bit topology in \
+                chunks; Kilian 5.2), octree (32-bit nodes; 4.1) and octree_1bit (1-bit octree in chunks; 4.2). Per scene \
+                (and chain and ray set): bytes per triangle (topology, total) against trace time and slowdown vs bvh2, and \
+                against the extra triangle tests and box hits quantization costs (cwbvh against bvh8, qbvh_chunks against \
+                bvh2, octree_1bit against octree); one curve per layout family (a layout with every \
                 parameter fixed but one), ringed points on the Pareto front (no other layout is both smaller and \
                 cheaper). layout=auto rows are not plotted; they are in the last table."
             .into(),
