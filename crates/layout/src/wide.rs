@@ -380,11 +380,7 @@ impl WideBvh {
     fn plain(&self) -> Plain<'_> {
         // SAFETY: f32 and u32 have the same size and alignment; every bit pattern is a valid f32.
         let f = unsafe { std::slice::from_raw_parts(self.data.as_ptr() as *const f32, self.data.len()) };
-        let wd = self.width as usize;
-        let used = self.data.chunks_exact(7 * wd).map(|node| {
-            node[6 * wd..].iter().enumerate().fold(0u8, |m, (i, &c)| m | (((c != EMPTY) as u8) << i))
-        });
-        Plain { f, data: &self.data, used: used.collect() }
+        Plain { f, data: &self.data }
     }
 }
 
@@ -439,12 +435,10 @@ pub(crate) struct View<'a, N> {
     pub nodes: usize,
 }
 
-/// [`WideBvh`]'s rows in place: `data` as f32 (the box rows) and the codes row; the used-slot
-/// mask per node (computed once per trace call, not per visit).
+/// [`WideBvh`]'s rows in place: `data` as f32 (the box rows) and the codes row.
 pub(crate) struct Plain<'a> {
     f: &'a [f32],
     data: &'a [u32],
-    used: Vec<u8>,
 }
 
 impl<const W: usize> NodeSource<W> for Plain<'_> {
@@ -452,8 +446,10 @@ impl<const W: usize> NodeSource<W> for Plain<'_> {
     fn buf() {}
     #[inline(always)]
     fn node<'a>(&'a self, n: usize, _: &'a mut ()) -> Option<(&'a [f32], u32)> {
+        // Unused slots hold the empty box, which every box test misses (`Parallel` skips it), so
+        // no per-node mask is stored or computed.
         let base = n * 7 * W;
-        Some((self.f.get(base..base + 6 * W)?, *self.used.get(n)? as u32))
+        Some((self.f.get(base..base + 7 * W)?.get(..6 * W)?, (1u32 << W) - 1))
     }
     #[inline(always)]
     fn code(&self, n: usize, slot: usize) -> u32 {
@@ -541,8 +537,8 @@ impl WideBox<8> for Avx8 {
 }
 
 /// Parallel rays (a zero direction component): every child through `RayBox::hit`, which is exact
-/// for them (`RayBox` sees the empty box of an unused slot as unbounded: the traversal's used-slot
-/// mask drops those).
+/// for them. `RayBox` sees an empty box as unbounded, so empty boxes (unused slots of `bvh4`/`bvh8`)
+/// are skipped here; cwbvh's unused slots are dropped by its used-slot mask.
 struct Parallel;
 
 /// Closest hits with counters: the exact f64 triangle test, the scalar box test (the oracle).
@@ -742,6 +738,9 @@ impl<const W: usize> BoxSel<W> for Parallel {
                 min: Vec3::new(f(0), f(1), f(2)),
                 max: Vec3::new(f(3), f(4), f(5)),
             };
+            if b.is_empty() {
+                continue;
+            }
             if let Some(t) = rb.hit(&b, tmax) {
                 dist[c] = t;
                 mask |= 1 << c;
