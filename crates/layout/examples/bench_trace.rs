@@ -7,8 +7,8 @@
 //! `../shared/tools/*_anchor.cpp`), the ray starting at the first point towards the second with an
 //! infinite tmax (the anchors' tfar). The points come from bvhlab's generator (seed 7), not the
 //! anchors' mt19937, so the rays are of the same kind but not the same rays: the hit fractions
-//! printed beside each other say how close the sets are. 1 thread: median of `--runs` runs; 2
-//! threads for bvh8. Then `embree-anchor SCENE 1 1` and `tinybvh-anchor SCENE 1` (their builds run
+//! printed beside each other say how close the sets are. 1 thread: median of `--runs` rounds, the
+//! configurations alternated within each round; 2 threads for bvh8. Then `embree-anchor SCENE 1 1` and `tinybvh-anchor SCENE 1` (their builds run
 //! once; their traces are one pass over 10^6 rays each) in the same invocation, and the ratios.
 //! Before timing, the fast hits of 10^4 rays are checked against the exact traversal
 //! (`bvhlab_trace::check_agreement`).
@@ -16,9 +16,8 @@ use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_geom::stats::median;
 use bvhlab_layout::cwbvh::CwBvh;
 use bvhlab_layout::wide::WideBvh;
-use bvhlab_trace::{check_agreement, random_rays, FastBvh2, Hit, Ray, TriStore};
+use bvhlab_trace::{check_agreement, random_rays, FastBvh2, Hit, Ray};
 use std::process::Command;
-use std::time::Instant;
 
 fn pool(n: usize) -> rayon::ThreadPool {
     rayon::ThreadPoolBuilder::new().num_threads(n).build().expect("thread pool")
@@ -30,26 +29,38 @@ fn thread_cpu_ns() -> Option<u64> {
     s.split_whitespace().next()?.parse().ok()
 }
 
-/// Median Mrays/s of `runs` runs of `f` in a pool of `threads`: by wall time, and (1 thread) by the
-/// worker thread's own CPU time, which a loaded machine inflates less (the wall time is what
-/// compares with the anchors, which report wall time).
-fn mrays(rays: usize, runs: usize, threads: usize, f: &(dyn Fn() -> Vec<Hit> + Sync)) -> (f64, Option<f64>) {
-    let p = pool(threads);
-    let (mut t, mut c) = (Vec::new(), Vec::new());
+/// One timed configuration: a traversal on a thread count.
+type Job<'a> = (usize, Box<dyn Fn() -> Vec<Hit> + Sync + 'a>);
+
+/// Median Mrays/s of each job over `runs` rounds, the jobs alternated within a round (so a slow
+/// phase of the machine falls on every job alike, not on the one that happened to run then): by
+/// wall time, and (1 thread) by the worker thread's own CPU time, which a loaded machine inflates
+/// less (the wall time is what compares with the anchors, which report wall time).
+fn mrays(rays: usize, runs: usize, jobs: &[Job]) -> Vec<(f64, Option<f64>)> {
+    let pools: Vec<rayon::ThreadPool> = jobs.iter().map(|(n, _)| pool(*n)).collect();
+    let mut t = vec![Vec::new(); jobs.len()];
+    let mut c = vec![Vec::new(); jobs.len()];
     for _ in 0..runs {
-        let s = Instant::now();
-        let cpu = p.install(|| {
-            let c0 = thread_cpu_ns();
-            std::hint::black_box(f());
-            Some(thread_cpu_ns()? - c0?)
-        });
-        t.push(s.elapsed().as_secs_f64());
-        if let Some(ns) = cpu {
-            c.push(ns as f64 * 1e-9);
+        for (j, (_, f)) in jobs.iter().enumerate() {
+            let s = std::time::Instant::now();
+            let cpu = pools[j].install(|| {
+                let c0 = thread_cpu_ns();
+                std::hint::black_box(f());
+                Some(thread_cpu_ns()? - c0?)
+            });
+            t[j].push(s.elapsed().as_secs_f64());
+            if let Some(ns) = cpu {
+                c[j].push(ns as f64 * 1e-9);
+            }
         }
     }
-    let cpu = (threads == 1 && c.len() == runs).then(|| rays as f64 / median(&c) / 1e6);
-    (rays as f64 / median(&t) / 1e6, cpu)
+    jobs.iter()
+        .enumerate()
+        .map(|(j, (n, _))| {
+            let cpu = (*n == 1 && c[j].len() == runs).then(|| rays as f64 / median(&c[j]) / 1e6);
+            (rays as f64 / median(&t[j]) / 1e6, cpu)
+        })
+        .collect()
 }
 
 /// The number after `"key":` in a one-line JSON object, after `after` if given.
@@ -128,8 +139,8 @@ fn main() {
         let f2 = FastBvh2::new(&bvh, tris);
         let w4 = WideBvh::build(&bvh, 4).expect("bvh4");
         let w8 = WideBvh::build(&bvh, 8).expect("bvh8");
-        let s4 = TriStore::new(&w4.prim_indices, tris);
-        let s8 = TriStore::new(&w8.prim_indices, tris);
+        let s4 = w4.store(tris);
+        let s8 = w8.store(tris);
         let cw = CwBvh::build(&bvh).expect("cwbvh");
         // Oracle on a sample: fast hits against the exact traversal.
         let sample = &rays[..rays.len().min(10_000)];
@@ -160,11 +171,15 @@ fn main() {
             cw.memory().total_bytes as f64 / tris.len() as f64,
         );
         let hit_frac = f2.hits(&rays).iter().filter(|h| h.is_hit()).count() as f64 / rays.len() as f64;
-        let (m2, c2) = mrays(rays.len(), runs, 1, &|| f2.hits(&rays));
-        let (m4, c4) = mrays(rays.len(), runs, 1, &|| w4.hits(&s4, &rays));
-        let (m8, c8) = mrays(rays.len(), runs, 1, &|| w8.hits(&s8, &rays));
-        let (m8x2, _) = mrays(rays.len(), runs, 2, &|| w8.hits(&s8, &rays));
-        let (mcw, ccw) = mrays(rays.len(), runs, 1, &|| cw.hits(&s8, &rays));
+        let jobs: Vec<Job> = vec![
+            (1, Box::new(|| f2.hits(&rays))),
+            (1, Box::new(|| w4.hits(&s4, &rays))),
+            (1, Box::new(|| w8.hits(&s8, &rays))),
+            (2, Box::new(|| w8.hits(&s8, &rays))),
+            (1, Box::new(|| cw.hits(&s8, &rays))),
+        ];
+        let m = mrays(rays.len(), runs, &jobs);
+        let [(m2, c2), (m4, c4), (m8, c8), (m8x2, _), (mcw, ccw)] = m[..] else { unreachable!() };
         // Embree's rtcIntersect1 on these very rays, one thread, its scene (MEDIUM) committed
         // untimed: the anchor's own figure also times its ray generation (mt19937, sin, cos, sqrt).
         let peer = bvhlab_peers::Peer::EmbreeBinned;

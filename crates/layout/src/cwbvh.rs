@@ -31,7 +31,10 @@ pub const METHOD: Method = Method::new(
     "compressed 8-wide BVH: bvh8's collapse in 80-byte nodes, child boxes quantized to 8 bits on a power-of-two grid per node",
     "Ylitie, Karras and Laine 2017 (CWBVH, section 3.1)",
     &[],
-);
+)
+// 2: the traversal reads a leaf's triangles up to the store's end mark (its stored nodes are
+// unchanged; the bump re-measures its trace times with the current traversal).
+.with_version(2);
 
 /// One compressed node (80 bytes; see the module doc).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -201,7 +204,8 @@ impl CwBvh {
                 } else {
                     node.meta[slot] = USED | leaves;
                     leaves += 1;
-                    out.leaves.push(w.leaves[(code & !LEAF_BIT) as usize]);
+                    let l = w.leaf_index(*code).ok_or("cwbvh: a bvh8 leaf code without its leaf")?;
+                    out.leaves.push(w.leaves[l]);
                 }
             }
             out.nodes[index] = node;
@@ -223,15 +227,33 @@ impl CwBvh {
                 let empty = if i < 24 { f32::INFINITY } else { f32::NEG_INFINITY };
                 data.push(if used & (1 << slot) != 0 { v.to_bits() } else { empty.to_bits() });
             }
-            data.extend((0..8).map(|s| if used & (1 << s) != 0 { n.code(s) } else { EMPTY }));
+            // bvh8 names a leaf by its first slot; an out-of-range leaf number keeps a code no
+            // leaf starts at, which validation reports.
+            let leaf = |c: u32| match self.leaves.get((c & !LEAF_BIT) as usize) {
+                Some(l) => LEAF_BIT | l[0],
+                None => LEAF_BIT | (LEAF_BIT - 1),
+            };
+            data.extend((0..8).map(|s| match n.code(s) {
+                _ if used & (1 << s) == 0 => EMPTY,
+                c if c & LEAF_BIT != 0 => leaf(c),
+                c => c,
+            }));
         }
+        let mut leaves = self.leaves.clone();
+        leaves.sort_unstable();
         WideBvh {
             width: 8,
             data,
-            leaves: self.leaves.clone(),
+            leaves,
             prim_indices: self.prim_indices.clone(),
             root_bounds: self.root_bounds,
         }
+    }
+
+    /// The triangle store the timed traversal reads (leaf ends marked; the `bvh8` one of the same
+    /// BVH is the same store).
+    pub fn store(&self, tris: &[Triangle]) -> TriStore {
+        TriStore::with_leaves(&self.prim_indices, tris, &self.leaves)
     }
 
     pub fn memory(&self) -> Memory {
@@ -260,12 +282,12 @@ impl CwBvh {
     }
 
     fn view<'a>(&'a self, store: &'a TriStore) -> View<'a, Self> {
-        View { src: self, leaves: &self.leaves, tris: &store.tris, root: self.root_bounds, nodes: self.nodes.len() }
+        View { src: self, leaves: self.leaves.len(), tris: &store.tris, root: self.root_bounds, nodes: self.nodes.len() }
     }
 
     /// Closest hits with counters (exact f64 triangle test, scalar box test; untimed).
     pub fn trace(&self, tris: &[Triangle], rays: &[Ray]) -> TraceStats {
-        let store = TriStore::new(&self.prim_indices, tris);
+        let store = self.store(tris);
         wide::trace_view::<8, _>(&self.view(&store), rays)
     }
 
@@ -275,6 +297,7 @@ impl CwBvh {
     }
 
     pub fn hits_with<T: TriTest>(&self, store: &TriStore, rays: &[Ray], simd: Simd) -> Vec<Hit> {
+        assert!(store.leaf_ends, "the cwbvh traversal needs CwBvh::store's triangles (leaf ends marked)");
         wide::hits_view8::<T, _>(&self.view(store), rays, simd.resolve(8))
     }
 }
@@ -293,6 +316,14 @@ impl NodeSource<8> for CwBvh {
     #[inline(always)]
     fn code(&self, n: usize, slot: usize) -> u32 {
         self.nodes[n].code(slot)
+    }
+    #[inline(always)]
+    fn first(&self, code: u32) -> Option<usize> {
+        self.leaves.get((code & !LEAF_BIT) as usize).map(|l| l[0] as usize)
+    }
+    #[inline(always)]
+    fn addr(&self, code: u32) -> Option<*const u8> {
+        self.nodes.get(code as usize).map(|n| n as *const CwNode as *const u8)
     }
 }
 

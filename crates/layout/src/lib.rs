@@ -280,8 +280,8 @@ impl Layout {
     pub fn timed<'a>(&'a self, tris: &[Triangle]) -> Timed<'a> {
         match self {
             Layout::Bvh2(l) => Timed::Bvh2(bvhlab_trace::FastBvh2::new(&l.bvh, tris)),
-            Layout::Wide(w) => Timed::Wide(w, bvhlab_trace::TriStore::new(&w.prim_indices, tris)),
-            Layout::Cw(c) => Timed::Cw(c, bvhlab_trace::TriStore::new(&c.prim_indices, tris)),
+            Layout::Wide(w) => Timed::Wide(w, w.store(tris)),
+            Layout::Cw(c) => Timed::Cw(c, c.store(tris)),
             other => Timed::Exact(other),
         }
     }

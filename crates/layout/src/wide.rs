@@ -12,8 +12,12 @@
 //!
 //! Node storage: per node `7 * width` 32-bit words: rows min.x, min.y, min.z, max.x, max.y, max.z
 //! (f32 bits, one value per child) and a row of child codes (inner: node index; leaf: `LEAF_BIT |`
-//! index into `leaves`; empty slot: [`EMPTY`], with the empty box, which the sign-selected slab
-//! test always misses). bvh4: 112 bytes per node; bvh8: 224.
+//! its first triangle slot; empty slot: [`EMPTY`], with the empty box, which the sign-selected slab
+//! test always misses). bvh4: 112 bytes per node; bvh8: 224. A leaf's triangles run from its first
+//! slot to the triangle marked last in the traversal's triangle store (`TriStore::with_leaves`), so
+//! a leaf visit goes straight to its triangles (one memory access fewer than a leaf table, which
+//! on the dragon is a cache miss per leaf); the (first, count) table `leaves` serves validation
+//! and the counters only.
 //!
 //! Box test: one SIMD slab test of all children (AVX2 for 8 wide when the CPU has it, detected at
 //! run time; SSE for 4 wide, baseline on x86-64; a scalar loop otherwise), conservative like the
@@ -32,18 +36,22 @@ pub const METHOD4: Method = Method::new(
     "4-wide BVH: greedy SAH collapse of the binary BVH (largest-area child first), SoA child boxes, SSE box test, nearest child first",
     "Wald et al. 2008 (greedy collapse); Dammertz et al. 2008 (QBVH)",
     &[],
-);
+)
+// 2: a leaf child's code names its first triangle slot, not an index into `leaves`.
+.with_version(2);
 
 pub const METHOD8: Method = Method::new(
     "bvh8",
     "8-wide BVH: greedy SAH collapse of the binary BVH (largest-area child first), SoA child boxes, AVX2 box test (scalar fallback), nearest child first",
     "Wald et al. 2008 (greedy collapse); Ylitie et al. 2017 (8-wide)",
     &[],
-);
+)
+// 2: as METHOD4.
+.with_version(2);
 
 /// Child code of an unused slot.
 pub const EMPTY: u32 = u32::MAX;
-/// Set in a child code that names a leaf (the rest is the index into `leaves`).
+/// Set in a child code that names a leaf (the rest is its first triangle slot).
 pub const LEAF_BIT: u32 = 1 << 31;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -52,7 +60,8 @@ pub struct WideBvh {
     pub width: u32,
     /// `7 * width` words per node (see the module doc); node 0 is the root.
     pub data: Vec<u32>,
-    /// (first slot, count) per leaf: triangles `prim_indices[first..first + count]`.
+    /// (first slot, count) per leaf, sorted by first slot: triangles `prim_indices[first..first +
+    /// count]`. Not read by the timed traversal.
     pub leaves: Vec<[u32; 2]>,
     pub prim_indices: Vec<u32>,
     /// Box of the root (tested once per ray, exactly, before the SIMD traversal).
@@ -109,8 +118,11 @@ impl WideBvh {
                 }
                 w.set_box(wi, slot, &kn.bounds);
                 let code = if kn.is_leaf() {
+                    if kn.first & LEAF_BIT != 0 {
+                        return Err(format!("leaf slot {} beyond the 2^31 a wide layout addresses", kn.first));
+                    }
                     w.leaves.push([kn.first, kn.count]);
-                    LEAF_BIT | (w.leaves.len() - 1) as u32
+                    LEAF_BIT | kn.first
                 } else {
                     let ni = w.alloc();
                     work.push((ni, k));
@@ -119,7 +131,21 @@ impl WideBvh {
                 w.set_child(wi, slot, code);
             }
         }
+        w.leaves.sort_unstable();
         Ok(w)
+    }
+
+    /// Index in `leaves` of the leaf a child code names (None: not a leaf code, or no such leaf).
+    pub fn leaf_index(&self, code: u32) -> Option<usize> {
+        if code == EMPTY || code & LEAF_BIT == 0 {
+            return None;
+        }
+        self.leaves.binary_search_by_key(&(code & !LEAF_BIT), |l| l[0]).ok()
+    }
+
+    /// The triangle store the timed traversal reads: `prim_indices`' triangles with leaf ends marked.
+    pub fn store(&self, tris: &[Triangle]) -> TriStore {
+        TriStore::with_leaves(&self.prim_indices, tris, &self.leaves)
     }
 
     fn stride(&self) -> usize {
@@ -169,7 +195,8 @@ impl WideBvh {
     }
 
     pub fn memory(&self) -> Memory {
-        let topology = (self.data.len() * 4 + self.leaves.len() * 8) as u64;
+        // No leaf table: a leaf's count is a mark on its last triangle reference (module doc).
+        let topology = (self.data.len() * 4) as u64;
         Memory {
             topology_bytes: topology,
             total_bytes: topology + self.prim_indices.len() as u64 * 4,
@@ -200,9 +227,8 @@ impl WideBvh {
                     continue;
                 }
                 u = u.union(&b);
-                if code & LEAF_BIT != 0 {
-                    let [_, count] = self.leaves[(code & !LEAF_BIT) as usize];
-                    leaf += ratio(b.area()) * count as f64;
+                if let Some(l) = self.leaf_index(code) {
+                    leaf += ratio(b.area()) * self.leaves[l][1] as f64;
                 }
             }
             inner += ratio(if n == 0 { root_sa } else { u.area() });
@@ -270,9 +296,11 @@ impl WideBvh {
                     }
                     stack.push((c, b));
                 } else {
-                    let l = (code & !LEAF_BIT) as usize;
-                    if l >= self.leaves.len() || std::mem::replace(&mut seen_leaf[l], true) {
-                        return Err(format!("node {n} slot {s}: leaf {l} out of range or reached twice"));
+                    let Some(l) = self.leaf_index(code) else {
+                        return Err(format!("node {n} slot {s}: no leaf starts at slot {}", code & !LEAF_BIT));
+                    };
+                    if std::mem::replace(&mut seen_leaf[l], true) {
+                        return Err(format!("node {n} slot {s}: leaf {l} reached twice"));
                     }
                     let [first, count] = self.leaves[l];
                     let (first, count) = (first as usize, count as usize);
@@ -330,7 +358,7 @@ impl WideBvh {
                     EMPTY => continue,
                     c if c & LEAF_BIT == 0 => reach[c as usize],
                     c => {
-                        let [first, count] = self.leaves[(c & !LEAF_BIT) as usize];
+                        let [first, count] = self.leaf_index(c).map_or([0, 0], |l| self.leaves[l]);
                         let ids = &self.prim_indices[first as usize..(first + count) as usize];
                         ids.iter().fold(Aabb::EMPTY, |u, &p| {
                             let t = tris[p as usize].bounds();
@@ -353,9 +381,9 @@ impl WideBvh {
     /// Closest hits with counters (exact f64 test, scalar box test: the oracle and the counters;
     /// untimed). Steps = wide nodes and leaves entered; tests = triangle tests.
     pub fn trace(&self, tris: &[Triangle], rays: &[Ray]) -> TraceStats {
-        let store = TriStore::new(&self.prim_indices, tris);
+        let store = self.store(tris);
         let plain = self.plain();
-        let v = View { src: &plain, leaves: &self.leaves, tris: &store.tris, root: self.root_bounds, nodes: self.nodes() };
+        let v = View { src: &plain, leaves: self.leaves.len(), tris: &store.tris, root: self.root_bounds, nodes: self.nodes() };
         match self.width {
             4 => trace_view::<4, _>(&v, rays),
             _ => trace_view::<8, _>(&v, rays),
@@ -368,9 +396,11 @@ impl WideBvh {
     }
 
     /// Hits with the triangle test `T` and the box test `simd` (tests check every combination).
+    /// `store` comes from [`WideBvh::store`] (leaf ends marked; checked).
     pub fn hits_with<T: TriTest>(&self, store: &TriStore, rays: &[Ray], simd: Simd) -> Vec<Hit> {
+        assert!(store.leaf_ends, "the wide traversal needs WideBvh::store's triangles (leaf ends marked)");
         let plain = self.plain();
-        let v = View { src: &plain, leaves: &self.leaves, tris: &store.tris, root: self.root_bounds, nodes: self.nodes() };
+        let v = View { src: &plain, leaves: self.leaves.len(), tris: &store.tris, root: self.root_bounds, nodes: self.nodes() };
         match self.width {
             4 => hits_view4::<T, _>(&v, rays, simd.resolve(4)),
             _ => hits_view8::<T, _>(&v, rays, simd.resolve(8)),
@@ -421,15 +451,21 @@ pub(crate) trait NodeSource<const W: usize> {
     fn buf() -> Self::Buf;
     /// Box rows and used-slot mask of node `n` (None: out of range, a malformed layout).
     fn node<'a>(&'a self, n: usize, buf: &'a mut Self::Buf) -> Option<(&'a [f32], u32)>;
-    /// Child code of `slot` of node `n` (inner: node index; leaf: `LEAF_BIT | leaf index`).
+    /// Child code of `slot` of node `n` (inner: node index; leaf: `LEAF_BIT | ` the source's leaf
+    /// number).
     fn code(&self, n: usize, slot: usize) -> u32;
+    /// First triangle slot of the leaf a leaf code names (None: no such leaf).
+    fn first(&self, code: u32) -> Option<usize>;
+    /// Where inner child `code`'s node starts in memory (for a prefetch; None: nothing to fetch).
+    fn addr(&self, code: u32) -> Option<*const u8>;
 }
 
 /// The traversal's view of a wide BVH: its nodes and the triangles in leaf-slot order.
 #[derive(Clone, Copy)]
 pub(crate) struct View<'a, N> {
     pub src: &'a N,
-    pub leaves: &'a [[u32; 2]],
+    /// Number of leaves (bounds the steps of a ray in a malformed layout).
+    pub leaves: usize,
     pub tris: &'a [WTri],
     pub root: Aabb,
     pub nodes: usize,
@@ -454,6 +490,14 @@ impl<const W: usize> NodeSource<W> for Plain<'_> {
     #[inline(always)]
     fn code(&self, n: usize, slot: usize) -> u32 {
         self.data[n * 7 * W + 6 * W + slot]
+    }
+    #[inline(always)]
+    fn first(&self, code: u32) -> Option<usize> {
+        Some((code & !LEAF_BIT) as usize)
+    }
+    #[inline(always)]
+    fn addr(&self, code: u32) -> Option<*const u8> {
+        self.data.get(code as usize * 7 * W).map(|w| w as *const u32 as *const u8)
     }
 }
 
@@ -591,6 +635,30 @@ unsafe fn chunk_avx8<T: TriTest, N: NodeSource<8>>(v: &View<N>, rays: &[Ray], hi
 }
 
 impl<N> View<'_, N> {
+    /// Asks for the memory of a child pushed on the stack: a ray that misses everything below
+    /// its nearest child pops it next, and its node (or leaf triangles) is then already on the
+    /// way instead of one more cache miss in line (the dragon's tree does not fit the caches).
+    #[inline(always)]
+    fn prefetch<const W: usize>(&self, code: u32) where N: NodeSource<W> {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+            let p = if code & LEAF_BIT != 0 {
+                self.src.first(code).and_then(|f| self.tris.get(f)).map(|t| t as *const WTri as *const u8)
+            } else {
+                self.src.addr(code)
+            };
+            if let Some(p) = p {
+                // SAFETY: prefetching never faults; the lines are those of a node or triangle in bounds.
+                unsafe {
+                    for line in 0..(W * 28).div_ceil(64) {
+                        _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(line * 64) as *const i8);
+                    }
+                }
+            }
+        }
+    }
+
     #[inline(always)]
     fn one<const W: usize, T: TriTest, B: WideBox<W>, const STATS: bool>(
         &self,
@@ -642,7 +710,7 @@ impl<N> View<'_, N> {
         let mut tr: Option<T::Ray> = None;
         stack.clear();
         let mut cur = 0u32;
-        let mut budget = self.nodes + self.leaves.len();
+        let mut budget = self.nodes + self.leaves;
         let mut buf = N::buf();
         loop {
             if budget == 0 {
@@ -683,22 +751,25 @@ impl<N> View<'_, N> {
                             n += 1;
                         }
                         for &it in &items[..n - 1] {
+                            self.prefetch::<W>(it.0);
                             stack.push(it);
                         }
                         cur = items[n - 1].0;
                         continue;
                     }
                 }
-            } else if let Some(&[first, count]) = self.leaves.get((cur & !LEAF_BIT) as usize) {
-                let first = (first as usize).min(self.tris.len());
-                let end = first.saturating_add(count as usize).min(self.tris.len());
+            } else if let Some(first) = self.src.first(cur) {
+                // The leaf's triangles: from its first slot to the one marked last.
                 let tr = &*tr.get_or_insert_with(|| T::prepare(ray, &sr.inv));
-                for tri in &self.tris[first..end] {
+                for tri in self.tris.get(first..).unwrap_or_default() {
                     if STATS {
                         tests += 1;
                     }
                     if let Some(t) = T::test(tr, tri) {
                         accept(t, tri.prim, &mut best);
+                    }
+                    if tri.last != 0 {
+                        break;
                     }
                 }
             }

@@ -9,7 +9,7 @@ use bvhlab_layout::cwbvh::CwBvh;
 use bvhlab_layout::wide::{Simd, WideBvh};
 use bvhlab_layout::Layout;
 use bvhlab_trace::fast::{Exact, Watertight};
-use bvhlab_trace::{check_agreement, TriStore};
+use bvhlab_trace::check_agreement;
 use common::*;
 
 fn cw_of(l: &Layout) -> &CwBvh {
@@ -24,7 +24,7 @@ fn check_cw(c: &Case) -> f64 {
     let l = check(c, &spec("cwbvh", &[]));
     let cw = cw_of(&l);
     let tris = &c.scene.triangles;
-    let store = TriStore::new(&cw.prim_indices, tris);
+    let store = cw.store(tris);
     for simd in [Simd::Best, Simd::Avx2, Simd::Scalar] {
         assert_eq!(cw.hits_with::<Exact>(&store, &c.rays, simd), c.want, "{} {simd:?} exact", c.spec);
         let fast = cw.hits_with::<Watertight>(&store, &c.rays, simd);
@@ -35,7 +35,10 @@ fn check_cw(c: &Case) -> f64 {
     assert_eq!(cw.leaves.len(), w8.leaves.len());
     let m = l.memory();
     assert_eq!(m.topology_bytes, (cw.nodes.len() * 80 + cw.leaves.len() * 8) as u64);
-    assert!(m.topology_bytes * 2 < w8.memory().topology_bytes, "{}: not compressed", c.spec);
+    // Nodes under half of bvh8's; cwbvh keeps a leaf table (8 bytes per leaf) that bvh8 no longer
+    // needs (its leaf codes name the first triangle slot), so the whole is compared as smaller only.
+    assert!(cw.nodes.len() * 80 * 2 < w8.nodes() * 224, "{}: nodes not compressed", c.spec);
+    assert!(m.topology_bytes < w8.memory().topology_bytes, "{}: not compressed", c.spec);
     let cost = CostParams::default();
     let (q, exact) = (cw.sah_cost(cost), w8.sah_cost(cost));
     assert!(q >= exact * (1.0 - 1e-9), "{}: quantized boxes are larger: {q} < {exact}", c.spec);
@@ -86,7 +89,7 @@ fn validation_rejects_a_shrunk_box_and_a_repeated_triangle() {
 fn identical_at_any_thread_count() {
     let c = case("gen:hairball:n=500", 2, 5000, 9);
     let cw = CwBvh::build(&c.bvh).unwrap();
-    let store = TriStore::new(&cw.prim_indices, &c.scene.triangles);
+    let store = cw.store(&c.scene.triangles);
     let run = |n| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
         pool.install(|| (cw.hits(&store, &c.rays), cw.trace(&c.scene.triangles, &c.rays)))

@@ -22,7 +22,7 @@ fn wide_of(l: &Layout) -> &WideBvh {
 
 /// Every box test, exact and watertight, against brute force.
 fn check_timed(c: &Case, w: &WideBvh, rays: &[Ray], want: &[bvhlab_trace::Hit], edge: usize) {
-    let store = TriStore::new(&w.prim_indices, &c.scene.triangles);
+    let store = w.store(&c.scene.triangles);
     for simd in SIMDS {
         let got = w.hits_with::<Exact>(&store, rays, simd);
         assert_eq!(got, want, "{} bvh{} {simd:?} exact", c.spec, w.width);
@@ -44,7 +44,7 @@ fn wide_layouts_match_brute_force() {
                 check_timed(&c, w, &c.rays, &c.want, 8);
                 let m = l.memory();
                 let width = if name == "bvh4" { 4 } else { 8 };
-                assert_eq!(m.topology_bytes, (w.nodes() * 28 * width + w.leaves.len() * 8) as u64);
+                assert_eq!(m.topology_bytes, (w.nodes() * 28 * width) as u64);
                 assert_eq!(m.prim_refs, c.scene.triangles.len() as u64);
                 // Fewer nodes than the binary tree's inner nodes; same leaves.
                 let bin_leaves = c.bvh.nodes.iter().filter(|n| n.is_leaf()).count();
@@ -172,7 +172,7 @@ fn validation_rejects_broken_layouts() {
 fn identical_at_any_thread_count() {
     let c = case("gen:hairball:n=500", 2, 5000, 9);
     let w = WideBvh::build(&c.bvh, 8).unwrap();
-    let store = TriStore::new(&w.prim_indices, &c.scene.triangles);
+    let store = w.store(&c.scene.triangles);
     let run = |n| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(n)
@@ -183,4 +183,21 @@ fn identical_at_any_thread_count() {
     let (a, b) = (run(1), run(3));
     assert_eq!(a.0, b.0);
     assert_eq!(a.1.steps, b.1.steps);
+}
+
+/// A leaf child names its first triangle slot and its triangles run to the store's end mark, so a
+/// store without marks is refused (it would test the following leaves' triangles too), and every
+/// leaf's last slot carries the mark.
+#[test]
+#[should_panic(expected = "leaf ends marked")]
+fn timed_path_refuses_a_store_without_leaf_ends() {
+    let c = case("gen:sphere:n=500", 2, 10, 5);
+    let w = WideBvh::build(&c.bvh, 8).unwrap();
+    let store = w.store(&c.scene.triangles);
+    let ends: Vec<usize> = w.leaves.iter().map(|l| (l[0] + l[1] - 1) as usize).collect();
+    let marked: Vec<usize> = (0..store.tris.len()).filter(|&i| store.tris[i].last != 0).collect();
+    let mut want = ends.clone();
+    want.sort_unstable();
+    assert_eq!(marked, want);
+    w.hits(&TriStore::new(&w.prim_indices, &c.scene.triangles), &c.rays);
 }

@@ -21,19 +21,26 @@ use bvhlab_geom::{Aabb, Triangle, Vec3};
 use rayon::prelude::*;
 
 /// One triangle in leaf-slot order: its three vertices (the watertight test needs the vertices,
-/// not edges: Woop 2013 section 3 translates each vertex by the origin) and its scene index.
-/// 48 bytes with the alignment, so a triangle never straddles two cache lines.
+/// not edges: Woop 2013 section 3 translates each vertex by the origin), its scene index and
+/// whether it ends its leaf. 48 bytes with the alignment, so a triangle never straddles two cache
+/// lines; `last` sits in what would be padding.
 #[repr(C, align(16))]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct WTri {
     pub v: [[f32; 3]; 3],
     pub prim: u32,
+    /// Nonzero on the last triangle of a leaf ([`TriStore::with_leaves`]): a wide layout's leaf
+    /// child names its first slot only, and its triangles run to this mark (as Embree marks the
+    /// last primitive of a leaf), so a leaf visit reads no leaf table before its triangles.
+    pub last: u32,
 }
 
 /// Triangles of a BVH's leaves in slot order: `tris[i]` is scene triangle `prim_indices[i]`.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TriStore {
     pub tris: Vec<WTri>,
+    /// Leaf ends are marked (`WTri::last`): what the wide layouts' traversals need.
+    pub leaf_ends: bool,
 }
 
 impl TriStore {
@@ -46,14 +53,31 @@ impl TriStore {
                 Some(t) => WTri {
                     v: t.v.map(|v| v.to_array()),
                     prim: p,
+                    last: 0,
                 },
                 None => WTri {
                     v: [[f32::NAN; 3]; 3],
                     prim: p,
+                    last: 0,
                 },
             })
             .collect();
-        TriStore { tris }
+        TriStore { tris, leaf_ends: false }
+    }
+
+    /// [`TriStore::new`] with the last slot of every leaf (`[first, count]` ranges of slots)
+    /// marked. Ranges out of bounds or empty mark nothing (a malformed layout: its traversal then
+    /// runs on to the next mark or the end, reading real triangles only).
+    pub fn with_leaves(prim_indices: &[u32], tris: &[Triangle], leaves: &[[u32; 2]]) -> TriStore {
+        let mut s = TriStore::new(prim_indices, tris);
+        for &[first, count] in leaves {
+            let end = first as usize + count as usize;
+            if count > 0 && end <= s.tris.len() {
+                s.tris[end - 1].last = 1;
+            }
+        }
+        s.leaf_ends = true;
+        s
     }
 }
 
@@ -302,20 +326,48 @@ impl BoxTest for RayBox {
     }
 }
 
-/// A binary BVH prepared for the timed path: its nodes (the 32-byte nodes as they are: siblings
-/// adjacent, so both child boxes of a node share a cache line) and its triangles in slot order.
+/// Two sibling nodes on one 64-byte cache line: a node's two child boxes, which every visit
+/// reads together, arrive with one memory access.
+#[repr(C, align(64))]
+#[derive(Clone, Copy)]
+struct Pair([Node; 2]);
+
+/// A binary BVH prepared for the timed path: its 32-byte nodes copied so that siblings share a
+/// cache line, in depth-first order (a subtree's nodes close together), and its triangles in slot
+/// order. The visiting order and hence the hits are those of the BVH as given.
 pub struct FastBvh2<'a> {
-    nodes: &'a [Node],
+    pairs: Vec<Pair>,
+    len: usize,
     store: TriStore,
+    _bvh: std::marker::PhantomData<&'a Bvh>,
 }
 
 impl<'a> FastBvh2<'a> {
-    /// O(triangles): copies the triangles into slot order (done before timing).
+    /// O(nodes + triangles): copies nodes and triangles (done before timing).
     pub fn new(bvh: &'a Bvh, tris: &[Triangle]) -> FastBvh2<'a> {
+        let (pairs, len) = match pair_up(&bvh.nodes) {
+            Some(p) => {
+                let len = 2 * p.len();
+                (p, len)
+            }
+            // A malformed tree (an index out of range, a node reached twice) is traced as it is.
+            None => {
+                let pad = Node { bounds: Aabb::EMPTY, first: 0, count: 0 };
+                let p = bvh.nodes.chunks(2).map(|c| Pair([c[0], *c.get(1).unwrap_or(&pad)])).collect();
+                (p, bvh.nodes.len())
+            }
+        };
         FastBvh2 {
-            nodes: &bvh.nodes,
+            pairs,
+            len,
             store: TriStore::new(&bvh.prim_indices, tris),
+            _bvh: std::marker::PhantomData,
         }
+    }
+
+    fn nodes(&self) -> &[Node] {
+        // SAFETY: `Pair` is two `Node`s (repr(C), 64 bytes, no padding), `len <= 2 * pairs.len()`.
+        unsafe { std::slice::from_raw_parts(self.pairs.as_ptr() as *const Node, self.len) }
     }
 
     /// Closest hits with the watertight f32 test, no counters: the timed path.
@@ -332,11 +384,44 @@ impl<'a> FastBvh2<'a> {
     fn one<T: TriTest, const STATS: bool>(&self, ray: &Ray, stack: &mut Stack) -> (Hit, u32, u32) {
         let sr = SlabRay::new(ray);
         if sr.parallel {
-            bvh2_one::<T, RayBox, STATS>(self.nodes, &self.store.tris, ray, &RayBox::new(ray), sr.inv, stack)
+            bvh2_one::<T, RayBox, STATS>(self.nodes(), &self.store.tris, ray, &RayBox::new(ray), sr.inv, stack)
         } else {
-            bvh2_one::<T, SlabRay, STATS>(self.nodes, &self.store.tris, ray, &sr, sr.inv, stack)
+            bvh2_one::<T, SlabRay, STATS>(self.nodes(), &self.store.tris, ray, &sr, sr.inv, stack)
         }
     }
+}
+
+/// The nodes re-laid as sibling pairs in depth-first order: the root alone in pair 0, every
+/// inner node's children in one pair (left, right kept). None for a malformed tree.
+fn pair_up(nodes: &[Node]) -> Option<Vec<Pair>> {
+    let Some(&root) = nodes.first() else {
+        return Some(Vec::new());
+    };
+    let pad = Node { bounds: Aabb::EMPTY, first: 0, count: 0 };
+    let mut out = vec![Pair([root, pad])];
+    let mut seen = vec![false; nodes.len()];
+    seen[0] = true;
+    // (index in the new layout, index in `nodes`) of nodes whose children are still to place.
+    let mut todo = vec![(0usize, 0usize)];
+    while let Some((new, old)) = todo.pop() {
+        let n = nodes[old];
+        if n.count > 0 {
+            continue;
+        }
+        let l = n.first as usize;
+        let (Some(&a), Some(&b)) = (nodes.get(l), nodes.get(l.wrapping_add(1))) else {
+            return None;
+        };
+        if std::mem::replace(&mut seen[l], true) | std::mem::replace(&mut seen[l + 1], true) {
+            return None;
+        }
+        let p = out.len();
+        out.push(Pair([a, b]));
+        out[new / 2].0[new % 2].first = u32::try_from(2 * p).ok()?;
+        todo.push((2 * p + 1, l + 1));
+        todo.push((2 * p, l));
+    }
+    Some(out)
 }
 
 /// Runs `one` over all rays in parallel (rayon chunks, a stack per task), hits only.
@@ -411,13 +496,10 @@ fn bvh2_one<T: TriTest, B: BoxTest, const STATS: bool>(
                 let hr = rb.hit(&rn.bounds, best.t);
                 match (hl, hr) {
                     (Some(tl), Some(tr)) => {
-                        if tr < tl {
-                            stack.push((l as u32, tl));
-                            cur = l as u32 + 1;
-                        } else {
-                            stack.push((l as u32 + 1, tr));
-                            cur = l as u32;
-                        }
+                        let (far, f, t, near) = if tr < tl { (ln, l, tl, l + 1) } else { (rn, l + 1, tr, l) };
+                        prefetch_below(nodes, tris, far);
+                        stack.push((f as u32, t));
+                        cur = near as u32;
                         continue;
                     }
                     (Some(_), None) => {
@@ -440,6 +522,27 @@ fn bvh2_one<T: TriTest, B: BoxTest, const STATS: bool>(
     }
     let hit = best.found();
     (hit, steps, tests)
+}
+
+/// Asks for what a visit of `n` (pushed on the stack) reads: its children's pair, or its leaf's
+/// first triangle. A ray that misses below the near child pops it next, and the memory is then
+/// on its way instead of one more cache miss in line (large scenes do not fit the caches).
+#[inline(always)]
+fn prefetch_below(nodes: &[Node], tris: &[WTri], n: &Node) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let p = if n.count > 0 {
+            tris.get(n.first as usize).map(|t| t as *const WTri as *const i8)
+        } else {
+            nodes.get(n.first as usize).map(|c| c as *const Node as *const i8)
+        };
+        if let Some(p) = p {
+            // SAFETY: a prefetch never faults; the address is in bounds.
+            unsafe { std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p) };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (nodes, tris, n);
 }
 
 /// The tolerance of the f32 path against the exact one, per ray: the same triangle; or both hit
