@@ -34,7 +34,8 @@ pub const METHOD: Method = Method::new(
 )
 // 2: the traversal reads a leaf's triangles up to the store's end mark (its stored nodes are
 // unchanged; the bump re-measures its trace times with the current traversal).
-.with_version(2);
+// 3: built from bvh8 version 3 (combined leaves).
+.with_version(3);
 
 /// One compressed node (80 bytes; see the module doc).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]

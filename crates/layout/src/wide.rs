@@ -6,9 +6,13 @@
 //! 3.1; also Dammertz et al. 2008): a wide node starts with the binary node's two children and
 //! repeatedly replaces the inner child of largest surface area by its two children until it has
 //! `width` children or only leaves. Pulling the largest box first is what the SAH favours: the
-//! larger a box, the likelier a ray enters it, so skipping it saves the most node visits. Binary
-//! leaves stay leaves (their triangle ranges are kept), so the leaf-slot order of the binary BVH is
-//! the triangle order here too. (Ylitie et al. 2017's DP is the optimal alternative; not done.)
+//! larger a box, the likelier a ray enters it, so skipping it saves the most node visits. (Ylitie
+//! et al. 2017's DP is the optimal alternative; not done.) Leaves: a binary subtree with at most
+//! [`LEAF_BLOCK`] (4) triangle references is one leaf (a binary leaf with more stays as it is):
+//! four triangles are one SSE watertight test (`TriTest::test_leaf`), so a ray tests the four for
+//! about the price of one and skips the binary levels between them, as tinybvh's BVH8_CPU and
+//! Embree's triangle4 leaves do. Triangles are stored in the order the leaves are made (the wide
+//! layout's own `prim_indices`), so a combined leaf's triangles are consecutive.
 //!
 //! Node storage: per node `7 * width` 32-bit words: rows min.x, min.y, min.z, max.x, max.y, max.z
 //! (f32 bits, one value per child) and a row of child codes (inner: node index; leaf: `LEAF_BIT |`
@@ -22,13 +26,15 @@
 //! Box test: one SIMD slab test of all children (AVX2 for 8 wide when the CPU has it, detected at
 //! run time; SSE for 4 wide, baseline on x86-64; a scalar loop otherwise), conservative like the
 //! binary traversal's (`bvhlab_trace::SLAB_ROBUST`). Leaves use the triangle test given as a type:
-//! the watertight f32 test for timing, the exact f64 test for counters and the oracle.
+//! the watertight f32 test for timing (four at a time), the exact f64 test for counters and the
+//! oracle. Children pushed on the stack are prefetched (a ray missing below its nearest child pops
+//! them next; the dragon's tree does not fit the caches).
 use crate::Memory;
-use bvhlab_bvh::{Bvh, CostParams, Refs};
+use bvhlab_bvh::{Bvh, CostParams, Node, Refs};
 use bvhlab_geom::{Aabb, Triangle, Vec3};
 use bvhlab_params::Method;
 use bvhlab_trace::fast::{Exact, SlabRay, TriTest, Watertight};
-use bvhlab_trace::{accept, Hit, Ray, RayBox, Stack, TraceStats, TriStore, WTri, SLAB_ROBUST};
+use bvhlab_trace::{Hit, Ray, RayBox, Stack, TraceStats, TriStore, WTri, SLAB_ROBUST};
 use serde::{Deserialize, Serialize};
 
 pub const METHOD4: Method = Method::new(
@@ -38,7 +44,8 @@ pub const METHOD4: Method = Method::new(
     &[],
 )
 // 2: a leaf child's code names its first triangle slot, not an index into `leaves`.
-.with_version(2);
+// 3: subtrees of at most LEAF_BLOCK references combined into one leaf; own prim_indices order.
+.with_version(3);
 
 pub const METHOD8: Method = Method::new(
     "bvh8",
@@ -46,11 +53,45 @@ pub const METHOD8: Method = Method::new(
     "Wald et al. 2008 (greedy collapse); Ylitie et al. 2017 (8-wide)",
     &[],
 )
-// 2: as METHOD4.
-.with_version(2);
+// 2, 3: as METHOD4.
+.with_version(3);
 
 /// Child code of an unused slot.
 pub const EMPTY: u32 = u32::MAX;
+/// A binary subtree with at most this many triangle references becomes one leaf of the wide
+/// tree: four triangles are one SIMD triangle test (`TriTest::test_leaf`), as tinybvh's BVH8_CPU
+/// leaves hold four (its `CombineLeafs(4)`) and Embree's hold triangle4 blocks.
+pub const LEAF_BLOCK: u32 = 4;
+
+/// References below each binary node (leaves' counts summed), checking on the way that every index
+/// is in range and no node is reached twice.
+fn subtree_refs(nodes: &[Node]) -> Result<Vec<u32>, String> {
+    let mut refs = vec![0u32; nodes.len()];
+    let mut seen = vec![false; nodes.len()];
+    let mut order = Vec::with_capacity(nodes.len());
+    let mut todo = vec![0usize];
+    seen[0] = true;
+    while let Some(i) = todo.pop() {
+        order.push(i);
+        let n = &nodes[i];
+        if n.is_leaf() {
+            continue;
+        }
+        for c in [n.first as usize, n.first as usize + 1] {
+            match seen.get_mut(c) {
+                None => return Err(format!("malformed BVH: node index {c} out of range")),
+                Some(s) if *s => return Err(format!("malformed BVH: node {c} reached twice")),
+                Some(s) => *s = true,
+            }
+            todo.push(c);
+        }
+    }
+    for &i in order.iter().rev() {
+        let n = &nodes[i];
+        refs[i] = if n.is_leaf() { n.count } else { refs[n.first as usize].saturating_add(refs[n.first as usize + 1]) };
+    }
+    Ok(refs)
+}
 /// Set in a child code that names a leaf (the rest is its first triangle slot).
 pub const LEAF_BIT: u32 = 1 << 31;
 
@@ -77,7 +118,7 @@ impl WideBvh {
             width: width as u32,
             data: Vec::new(),
             leaves: Vec::new(),
-            prim_indices: bvh.prim_indices.clone(),
+            prim_indices: Vec::with_capacity(bvh.prim_indices.len()),
             root_bounds: Aabb::EMPTY,
         };
         let nodes = &bvh.nodes;
@@ -85,22 +126,19 @@ impl WideBvh {
             return Ok(w);
         };
         w.root_bounds = root.bounds;
-        let bad = |i: u32| format!("malformed BVH: node index {i} out of range");
-        let mut seen = vec![false; nodes.len()];
+        let refs = subtree_refs(nodes)?;
+        // A binary subtree of at most LEAF_BLOCK references is one leaf here (module doc).
+        let leafish = |k: u32| nodes[k as usize].is_leaf() || refs[k as usize] <= LEAF_BLOCK;
         let mut work = vec![(w.alloc(), 0u32)];
         while let Some((wi, bn)) = work.pop() {
-            let n = nodes.get(bn as usize).ok_or_else(|| bad(bn))?;
-            let mut kids: Vec<u32> = if n.is_leaf() { vec![bn] } else { vec![n.first, n.first.wrapping_add(1)] };
-            loop {
-                if kids.len() >= width {
-                    break;
-                }
+            let n = &nodes[bn as usize];
+            let mut kids: Vec<u32> = if leafish(bn) { vec![bn] } else { vec![n.first, n.first + 1] };
+            while kids.len() < width {
                 // The inner child of largest surface area (first one on ties: deterministic).
                 let mut pick: Option<(usize, f64)> = None;
                 for (i, &k) in kids.iter().enumerate() {
-                    let kn = nodes.get(k as usize).ok_or_else(|| bad(k))?;
-                    if !kn.is_leaf() {
-                        let a = kn.bounds.area();
+                    if !leafish(k) {
+                        let a = nodes[k as usize].bounds.area();
                         if pick.is_none_or(|(_, b)| a > b) {
                             pick = Some((i, a));
                         }
@@ -109,20 +147,19 @@ impl WideBvh {
                 let Some((i, _)) = pick else { break };
                 let l = nodes[kids[i] as usize].first;
                 kids[i] = l;
-                kids.insert(i + 1, l.wrapping_add(1));
+                kids.insert(i + 1, l + 1);
             }
             for (slot, &k) in kids.iter().enumerate() {
-                let kn = nodes.get(k as usize).ok_or_else(|| bad(k))?;
-                if std::mem::replace(&mut seen[k as usize], true) && k != 0 {
-                    return Err(format!("malformed BVH: node {k} reached twice"));
-                }
+                let kn = &nodes[k as usize];
                 w.set_box(wi, slot, &kn.bounds);
-                let code = if kn.is_leaf() {
-                    if kn.first & LEAF_BIT != 0 {
-                        return Err(format!("leaf slot {} beyond the 2^31 a wide layout addresses", kn.first));
+                let code = if leafish(k) {
+                    let first = w.prim_indices.len() as u32;
+                    if first & LEAF_BIT != 0 {
+                        return Err(format!("leaf slot {first} beyond the 2^31 a wide layout addresses"));
                     }
-                    w.leaves.push([kn.first, kn.count]);
-                    LEAF_BIT | kn.first
+                    w.push_leaf_refs(bvh, k, !kn.is_leaf())?;
+                    w.leaves.push([first, w.prim_indices.len() as u32 - first]);
+                    LEAF_BIT | first
                 } else {
                     let ni = w.alloc();
                     work.push((ni, k));
@@ -131,8 +168,32 @@ impl WideBvh {
                 w.set_child(wi, slot, code);
             }
         }
-        w.leaves.sort_unstable();
         Ok(w)
+    }
+
+    /// Appends the references of binary subtree `k` (left to right) to `prim_indices`; in a
+    /// combined leaf each triangle once (an SBVH subtree may hold two fragments of one triangle).
+    fn push_leaf_refs(&mut self, bvh: &Bvh, k: u32, combined: bool) -> Result<(), String> {
+        let start = self.prim_indices.len();
+        let mut todo = vec![k];
+        while let Some(i) = todo.pop() {
+            let n = &bvh.nodes[i as usize];
+            if n.is_leaf() {
+                let (first, count) = (n.first as usize, n.count as usize);
+                let ids = bvh
+                    .prim_indices
+                    .get(first..first.saturating_add(count))
+                    .ok_or_else(|| format!("malformed BVH: leaf {i} slots {first}+{count} out of range"))?;
+                for &p in ids {
+                    if !combined || !self.prim_indices[start..].contains(&p) {
+                        self.prim_indices.push(p);
+                    }
+                }
+            } else {
+                todo.extend([n.first + 1, n.first]);
+            }
+        }
+        Ok(())
     }
 
     /// Index in `leaves` of the leaf a child code names (None: not a leaf code, or no such leaf).
@@ -761,16 +822,9 @@ impl<N> View<'_, N> {
             } else if let Some(first) = self.src.first(cur) {
                 // The leaf's triangles: from its first slot to the one marked last.
                 let tr = &*tr.get_or_insert_with(|| T::prepare(ray, &sr.inv));
-                for tri in self.tris.get(first..).unwrap_or_default() {
-                    if STATS {
-                        tests += 1;
-                    }
-                    if let Some(t) = T::test(tr, tri) {
-                        accept(t, tri.prim, &mut best);
-                    }
-                    if tri.last != 0 {
-                        break;
-                    }
+                let n = T::test_leaf(tr, self.tris.get(first..).unwrap_or_default(), &mut best);
+                if STATS {
+                    tests += n;
                 }
             }
             match stack.pop_within(best.t * SLAB_ROBUST) {

@@ -5,7 +5,7 @@
 mod common;
 use bvhlab_bvh::{Bvh, Node};
 use bvhlab_geom::Vec3;
-use bvhlab_layout::wide::{Simd, WideBvh, EMPTY, LEAF_BIT};
+use bvhlab_layout::wide::{Simd, WideBvh, EMPTY, LEAF_BIT, LEAF_BLOCK};
 use bvhlab_layout::{build, Layout};
 use bvhlab_trace::fast::{Exact, Watertight};
 use bvhlab_trace::{brute_force, check_agreement, Ray, TriStore};
@@ -46,9 +46,12 @@ fn wide_layouts_match_brute_force() {
                 let width = if name == "bvh4" { 4 } else { 8 };
                 assert_eq!(m.topology_bytes, (w.nodes() * 28 * width) as u64);
                 assert_eq!(m.prim_refs, c.scene.triangles.len() as u64);
-                // Fewer nodes than the binary tree's inner nodes; same leaves.
+                // Fewer nodes than the binary tree's inner nodes; its leaves, or subtrees of at
+                // most LEAF_BLOCK references combined into one leaf.
                 let bin_leaves = c.bvh.nodes.iter().filter(|n| n.is_leaf()).count();
-                assert_eq!(w.leaves.len(), bin_leaves);
+                assert!(w.leaves.len() <= bin_leaves);
+                let bin_max = c.bvh.nodes.iter().filter(|n| n.is_leaf()).map(|n| n.count).max().unwrap_or(0);
+                assert!(w.leaves.iter().all(|l| l[1] <= LEAF_BLOCK.max(bin_max)), "{} leaf {leaf}", c.spec);
                 assert!(w.nodes() <= (c.bvh.nodes.len() - bin_leaves).max(1));
             }
         }
@@ -69,10 +72,13 @@ fn collapse_fills_nodes_and_lowers_node_visits() {
         assert!(w.nodes() * 3 <= inner * 2, "{name}: {} wide nodes for {inner} binary inner nodes", w.nodes());
         let _ = width;
         let s = l.trace(&c.scene.triangles, &c.rays);
-        // The same leaves, visited in a different order (culling differs a little).
+        // Binary leaves of up to two triangles, combined into leaves of up to four: more tests,
+        // but not twice as many (culling differs a little too), and far fewer node visits.
         let ratio = s.total_intersections as f64 / s2.total_intersections as f64;
-        assert!((0.9..1.1).contains(&ratio), "{name}: tests {ratio} of bvh2's");
-        assert!(s.total_steps < s2.total_steps, "{name}: fewer node visits");
+        assert!((1.0..2.0).contains(&ratio), "{name}: tests {ratio} of bvh2's");
+        let steps = s.total_steps as f64 / s2.total_steps as f64;
+        assert!(steps < 0.75, "{name}: node visits {steps} of bvh2's");
+        eprintln!("{name}: tests {ratio:.3}, steps {steps:.3} of bvh2's");
     }
 }
 

@@ -1229,7 +1229,7 @@ fn layout_version_changes_only_its_layout_keys() {
     };
     let before = nodes(None);
     // Version 1 adds nothing to the keys: the same keys as before layouts carried versions (for the
-    // layouts of this test and of `auto`'s candidates; bvh4, bvh8 and cwbvh are at version 2).
+    // layouts of this test and of `auto`'s candidates; bvh4, bvh8 and cwbvh have their own).
     let r = Runner::new(Store::open(dir.path()).unwrap());
     assert!(
         r.registry

@@ -88,6 +88,13 @@ pub trait TriTest: Sync {
     /// `inv`: the inverse direction the box test computed already (saves divisions per ray).
     fn prepare(ray: &Ray, inv: &[f32; 3]) -> Self::Ray;
     fn test(r: &Self::Ray, tri: &WTri) -> Option<f32>;
+    /// Tests a leaf's triangles, `tris[0]` up to the first one marked [`WTri::last`] (or the end
+    /// of `tris`), accepting hits into `best`; returns how many were tested. One at a time here;
+    /// [`Watertight`] tests four at once.
+    #[inline(always)]
+    fn test_leaf(r: &Self::Ray, tris: &[WTri], best: &mut Hit) -> u32 {
+        Exact::test_leaf_with(r, tris, best, Self::test)
+    }
 }
 
 /// The reference: [`intersect_triangle`] in f64, bit-identical to brute force.
@@ -232,6 +239,117 @@ impl TriTest for Watertight {
     #[inline(always)]
     fn test(r: &WoopRay, tri: &WTri) -> Option<f32> {
         intersect_watertight(r, tri)
+    }
+    /// Four triangles per SSE test where four are in memory (a leaf's triangles are consecutive;
+    /// lanes past its last one are masked), the rest one by one. Same values as [`Self::test`].
+    #[inline(always)]
+    fn test_leaf(r: &WoopRay, tris: &[WTri], best: &mut Hit) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let mut n = 0;
+            let mut rest = tris;
+            while let Some(q) = rest.first_chunk::<4>() {
+                let lanes = q.iter().position(|t| t.last != 0).map_or(4, |p| p + 1);
+                // SAFETY: SSE is in the x86-64 baseline.
+                unsafe { watertight4(r, q, lanes, best) };
+                n += lanes as u32;
+                if lanes < 4 || q[3].last != 0 {
+                    return n;
+                }
+                rest = &rest[4..];
+            }
+            n + Exact::test_leaf_with(r, rest, best, intersect_watertight)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        Exact::test_leaf_with(r, tris, best, intersect_watertight)
+    }
+}
+
+impl Exact {
+    /// The one-at-a-time leaf loop with the test `f`.
+    #[inline(always)]
+    fn test_leaf_with<R>(r: &R, tris: &[WTri], best: &mut Hit, f: impl Fn(&R, &WTri) -> Option<f32>) -> u32 {
+        let mut n = 0;
+        for tri in tris {
+            n += 1;
+            if let Some(t) = f(r, tri) {
+                accept(t, tri.prim, best);
+            }
+            if tri.last != 0 {
+                break;
+            }
+        }
+        n
+    }
+}
+
+/// [`intersect_watertight`] on four triangles at once (SSE), the first `lanes` of `q` accepted
+/// into `best`: the same f32 operations in the same order per lane, so the same hits; a lane that
+/// needs the f64 fallback (an edge function 0, |det| out of range) goes through the scalar test.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn watertight4(r: &WoopRay, q: &[WTri; 4], lanes: usize, best: &mut Hit) {
+    use std::arch::x86_64::*;
+    unsafe {
+        // Columns of four 4-float rows: rows[j] = floats o..o + 4 of triangle j.
+        let cols = |o: usize| {
+            let row = |j: usize| _mm_loadu_ps((q[j].v.as_ptr() as *const f32).add(o));
+            let (r0, r1, r2, r3) = (row(0), row(1), row(2), row(3));
+            let (t0, t1) = (_mm_unpacklo_ps(r0, r1), _mm_unpacklo_ps(r2, r3));
+            let (t2, t3) = (_mm_unpackhi_ps(r0, r1), _mm_unpackhi_ps(r2, r3));
+            [_mm_movelh_ps(t0, t1), _mm_movehl_ps(t1, t0), _mm_movelh_ps(t2, t3), _mm_movehl_ps(t3, t2)]
+        };
+        // Floats 0..12 of a WTri are v0.xyz, v1.xyz, v2.xyz, prim (as bits).
+        let [x0, y0, z0, x1] = cols(0);
+        let [y1, z1, x2, y2] = cols(4);
+        let [z2, ..] = cols(8);
+        let v = [[x0, y0, z0], [x1, y1, z1], [x2, y2, z2]];
+        let [kx, ky, kz] = r.k;
+        let set = _mm_set1_ps;
+        let (ox, oy, oz) = (set(r.org[0]), set(r.org[1]), set(r.org[2]));
+        let (sx, sy, sz) = (set(r.s[0]), set(r.s[1]), set(r.s[2]));
+        let (az, bz, cz) = (_mm_sub_ps(v[0][kz], oz), _mm_sub_ps(v[1][kz], oz), _mm_sub_ps(v[2][kz], oz));
+        let sh = |i: usize, z: __m128| {
+            (
+                _mm_sub_ps(_mm_sub_ps(v[i][kx], ox), _mm_mul_ps(sx, z)),
+                _mm_sub_ps(_mm_sub_ps(v[i][ky], oy), _mm_mul_ps(sy, z)),
+            )
+        };
+        let ((ax, ay), (bx, by), (cx, cy)) = (sh(0, az), sh(1, bz), sh(2, cz));
+        let u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
+        let vv = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
+        let w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
+        let det = _mm_add_ps(_mm_add_ps(u, vv), w);
+        let zero = _mm_setzero_ps();
+        let valid = (1i32 << lanes) - 1;
+        let on_edge = _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(vv, zero)), _mm_cmpeq_ps(w, zero));
+        let adet = _mm_andnot_ps(set(-0.0), det);
+        let trusted = _mm_and_ps(_mm_cmpge_ps(adet, set(DET_MIN)), _mm_cmple_ps(adet, set(DET_MAX)));
+        let fallback = (_mm_movemask_ps(on_edge) | (!_mm_movemask_ps(trusted) & 0xf)) & valid;
+        let neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(vv, zero)), _mm_cmplt_ps(w, zero));
+        let pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(vv, zero)), _mm_cmpgt_ps(w, zero));
+        let mut cand = !_mm_movemask_ps(_mm_and_ps(neg, pos)) & valid & !fallback;
+        if cand != 0 {
+            let t = _mm_add_ps(
+                _mm_add_ps(_mm_mul_ps(u, _mm_mul_ps(sz, az)), _mm_mul_ps(vv, _mm_mul_ps(sz, bz))),
+                _mm_mul_ps(w, _mm_mul_ps(sz, cz)),
+            );
+            let mut ts = [0f32; 4];
+            _mm_storeu_ps(ts.as_mut_ptr(), _mm_div_ps(t, det));
+            while cand != 0 {
+                let l = cand.trailing_zeros() as usize;
+                cand &= cand - 1;
+                accept(ts[l], q[l].prim, best);
+            }
+        }
+        let mut fb = fallback;
+        while fb != 0 {
+            let l = fb.trailing_zeros() as usize;
+            fb &= fb - 1;
+            if let Some(t) = intersect_watertight(r, &q[l]) {
+                accept(t, q[l].prim, best);
+            }
+        }
     }
 }
 
