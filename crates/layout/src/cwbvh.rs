@@ -20,7 +20,7 @@
 use crate::wide::{self, NodeSource, Simd, View, WideBvh, EMPTY, LEAF_BIT};
 use crate::Memory;
 use bvhlab_bvh::{Bvh, CostParams, Refs};
-use bvhlab_geom::{Aabb, Triangle};
+use bvhlab_geom::{Aabb, Triangle, Vec3};
 use bvhlab_params::Method;
 use bvhlab_trace::fast::{TriTest, Watertight};
 use bvhlab_trace::{Hit, Ray, TraceStats, TriStore};
@@ -218,37 +218,28 @@ impl CwBvh {
     /// The same tree with its decoded (quantized) boxes as a plain `bvh8` (same node and leaf
     /// indices): what SAH cost and validation read.
     pub fn decoded(&self) -> WideBvh {
-        let mut data = Vec::with_capacity(self.nodes.len() * 56);
+        let mut w = WideBvh::empty(8, self.prim_indices.clone(), self.root_bounds);
+        // bvh8 names a leaf by its first slot; an out-of-range leaf number keeps a code no leaf
+        // starts at, which validation reports.
+        let leaf = |c: u32| match self.leaves.get((c & !LEAF_BIT) as usize) {
+            Some(l) => LEAF_BIT | l[0],
+            None => LEAF_BIT | (LEAF_BIT - 1),
+        };
         for n in &self.nodes {
+            let i = w.push_node();
             let mut rows = [0f32; 48];
             n.decode(&mut rows);
             let used = n.used();
-            for (i, v) in rows.iter().enumerate() {
-                let slot = i % 8;
-                let empty = if i < 24 { f32::INFINITY } else { f32::NEG_INFINITY };
-                data.push(if used & (1 << slot) != 0 { v.to_bits() } else { empty.to_bits() });
+            for slot in (0..8).filter(|s| used & (1 << s) != 0) {
+                let f = |row: usize| rows[row * 8 + slot];
+                w.set_box(i, slot, &Aabb { min: Vec3::new(f(0), f(1), f(2)), max: Vec3::new(f(3), f(4), f(5)) });
+                let c = n.code(slot);
+                w.set_child(i, slot, if c & LEAF_BIT != 0 { leaf(c) } else { c });
             }
-            // bvh8 names a leaf by its first slot; an out-of-range leaf number keeps a code no
-            // leaf starts at, which validation reports.
-            let leaf = |c: u32| match self.leaves.get((c & !LEAF_BIT) as usize) {
-                Some(l) => LEAF_BIT | l[0],
-                None => LEAF_BIT | (LEAF_BIT - 1),
-            };
-            data.extend((0..8).map(|s| match n.code(s) {
-                _ if used & (1 << s) == 0 => EMPTY,
-                c if c & LEAF_BIT != 0 => leaf(c),
-                c => c,
-            }));
         }
-        let mut leaves = self.leaves.clone();
-        leaves.sort_unstable();
-        WideBvh {
-            width: 8,
-            data,
-            leaves,
-            prim_indices: self.prim_indices.clone(),
-            root_bounds: self.root_bounds,
-        }
+        w.leaves = self.leaves.clone();
+        w.leaves.sort_unstable();
+        w
     }
 
     /// The triangle store the timed traversal reads (leaf ends marked; the `bvh8` one of the same

@@ -158,15 +158,18 @@ fn validation_rejects_broken_layouts() {
     // A shrunken child box.
     let mut b = w.clone();
     let i = 8; // node 0, row min.y, slot 0
-    b.data[i] = (f32::from_bits(b.data[i]) + 1.0).to_bits();
+    let words = b.words_mut();
+    words[i] = (f32::from_bits(words[i]) + 1.0).to_bits();
     assert!(b.validate(tris).is_err());
     // A leaf referenced twice instead of another.
     let mut b = w.clone();
     let codes = 6 * 8;
-    let leaf_slots: Vec<usize> = (0..b.nodes() * 56)
-        .filter(|&k| k % 56 >= codes && b.data[k] != EMPTY && b.data[k] & LEAF_BIT != 0)
+    let n = b.nodes();
+    let words = b.words_mut();
+    let leaf_slots: Vec<usize> = (0..n * 56)
+        .filter(|&k| k % 56 >= codes && words[k] != EMPTY && words[k] & LEAF_BIT != 0)
         .collect();
-    b.data[leaf_slots[1]] = b.data[leaf_slots[0]];
+    words[leaf_slots[1]] = words[leaf_slots[0]];
     assert!(b.validate(tris).is_err());
     // A triangle twice, another never.
     let mut b = w.clone();
