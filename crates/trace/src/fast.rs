@@ -249,11 +249,10 @@ impl TriTest for Watertight {
             let mut n = 0;
             let mut rest = tris;
             while let Some(q) = rest.first_chunk::<4>() {
-                let lanes = q.iter().position(|t| t.last != 0).map_or(4, |p| p + 1);
                 // SAFETY: SSE is in the x86-64 baseline.
-                unsafe { watertight4(r, q, lanes, best) };
-                n += lanes as u32;
-                if lanes < 4 || q[3].last != 0 {
+                let (lanes, end) = unsafe { watertight4(r, q, best) };
+                n += lanes;
+                if end {
                     return n;
                 }
                 rest = &rest[4..];
@@ -283,12 +282,14 @@ impl Exact {
     }
 }
 
-/// [`intersect_watertight`] on four triangles at once (SSE), the first `lanes` of `q` accepted
-/// into `best`: the same f32 operations in the same order per lane, so the same hits; a lane that
-/// needs the f64 fallback (an edge function 0, |det| out of range) goes through the scalar test.
+/// [`intersect_watertight`] on four triangles at once (SSE): `q` up to its first triangle marked
+/// last (lanes after it belong to the next leaf and are masked), hits accepted into `best`; returns
+/// the number of triangles tested and whether the leaf ended. The same f32 operations in the same
+/// order per lane, so the same hits; a lane that needs the f64 fallback (an edge function 0, |det|
+/// out of range) goes through the scalar test.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-unsafe fn watertight4(r: &WoopRay, q: &[WTri; 4], lanes: usize, best: &mut Hit) {
+unsafe fn watertight4(r: &WoopRay, q: &[WTri; 4], best: &mut Hit) -> (u32, bool) {
     use std::arch::x86_64::*;
     unsafe {
         // Columns of four 4-float rows: rows[j] = floats o..o + 4 of triangle j.
@@ -299,10 +300,13 @@ unsafe fn watertight4(r: &WoopRay, q: &[WTri; 4], lanes: usize, best: &mut Hit) 
             let (t2, t3) = (_mm_unpackhi_ps(r0, r1), _mm_unpackhi_ps(r2, r3));
             [_mm_movelh_ps(t0, t1), _mm_movehl_ps(t1, t0), _mm_movelh_ps(t2, t3), _mm_movehl_ps(t3, t2)]
         };
-        // Floats 0..12 of a WTri are v0.xyz, v1.xyz, v2.xyz, prim (as bits).
+        // Floats 0..12 of a WTri are v0.xyz, v1.xyz, v2.xyz, prim and last (as bits).
         let [x0, y0, z0, x1] = cols(0);
         let [y1, z1, x2, y2] = cols(4);
-        let [z2, ..] = cols(8);
+        let [z2, _, last, _] = cols(8);
+        // The lanes up to the first marked last (compared as integers: no branch per lane).
+        let ends = _mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(_mm_castps_si128(last), _mm_setzero_si128()))) ^ 0xf;
+        let lanes = if ends == 0 { 4 } else { ends.trailing_zeros() + 1 };
         let v = [[x0, y0, z0], [x1, y1, z1], [x2, y2, z2]];
         let [kx, ky, kz] = r.k;
         let set = _mm_set1_ps;
@@ -322,6 +326,7 @@ unsafe fn watertight4(r: &WoopRay, q: &[WTri; 4], lanes: usize, best: &mut Hit) 
         let det = _mm_add_ps(_mm_add_ps(u, vv), w);
         let zero = _mm_setzero_ps();
         let valid = (1i32 << lanes) - 1;
+        let done = (lanes, ends != 0);
         let on_edge = _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(vv, zero)), _mm_cmpeq_ps(w, zero));
         let adet = _mm_andnot_ps(set(-0.0), det);
         let trusted = _mm_and_ps(_mm_cmpge_ps(adet, set(DET_MIN)), _mm_cmple_ps(adet, set(DET_MAX)));
@@ -350,6 +355,7 @@ unsafe fn watertight4(r: &WoopRay, q: &[WTri; 4], lanes: usize, best: &mut Hit) 
                 accept(t, q[l].prim, best);
             }
         }
+        done
     }
 }
 
