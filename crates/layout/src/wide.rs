@@ -41,7 +41,7 @@ use serde::{Deserialize, Serialize};
 
 pub const METHOD4: Method = Method::new(
     "bvh4",
-    "4-wide BVH: greedy SAH collapse of the binary BVH (largest-area child first), SoA child boxes, SSE box test, nearest child first",
+    "4-wide BVH: greedy SAH collapse of the binary BVH (largest-area child first), subtrees of up to 4 triangles one leaf tested four at a time, SoA child boxes, SSE box test, nearest child first",
     "Wald et al. 2008 (greedy collapse); Dammertz et al. 2008 (QBVH)",
     &[],
 )
@@ -51,7 +51,7 @@ pub const METHOD4: Method = Method::new(
 
 pub const METHOD8: Method = Method::new(
     "bvh8",
-    "8-wide BVH: greedy SAH collapse of the binary BVH (largest-area child first), SoA child boxes, AVX2 box test (scalar fallback), nearest child first",
+    "8-wide BVH: greedy SAH collapse of the binary BVH (largest-area child first), subtrees of up to 4 triangles one leaf tested four at a time, SoA child boxes, AVX2 box test (scalar fallback), nearest child first",
     "Wald et al. 2008 (greedy collapse); Ylitie et al. 2017 (8-wide)",
     &[],
 )
