@@ -49,8 +49,10 @@ pub fn parse_obj_bytes(bytes: &[u8]) -> Result<Scene, (Option<usize>, String)> {
 /// Parse OBJ text from a reader. Errors are (1-based line, reason).
 ///
 /// Two threads: one reads (and gunzips) and validates blocks of whole lines, and hands each
-/// block on only once it passed validation; tobj parses the validated blocks as they arrive.
-/// So tobj never sees input the scan rejected, and reading + validation overlap with parsing.
+/// block on only once it passed validation (with the lines tobj mishandles neutralised, see
+/// [`filter`]); tobj parses the validated blocks as they arrive. So tobj never sees input the
+/// scan rejected, reading + validation overlap with parsing, and the text is never held whole
+/// (it was, until 2026-11-27: 33 MB of the dragon's 160 MB peak while loading).
 pub fn parse_obj_reader<R: Read + Send>(reader: R) -> Result<Scene, (Option<usize>, String)> {
     // Other fields exist only under tobj features (merging, reordering); keep them at default.
     #[allow(clippy::needless_update)]
@@ -82,7 +84,7 @@ pub fn parse_obj_reader<R: Read + Send>(reader: R) -> Result<Scene, (Option<usiz
             .unwrap_or_else(|_| Err((None, "internal: reader thread panicked".into())));
         (produced, streamed)
     });
-    let (text, scan) = produced?;
+    let scan = produced?;
     if scan.faces == 0 {
         return Err((
             None,
@@ -92,14 +94,7 @@ pub fn parse_obj_reader<R: Read + Send>(reader: R) -> Result<Scene, (Option<usiz
             ),
         ));
     }
-    let models = if scan.needs_filter {
-        // Rare: the stream to tobj was cut at the first line needing a rewrite; redo on the whole text.
-        let text = std::str::from_utf8(&text)
-            .map_err(|_| (None, "internal: text not UTF-8".to_string()))?;
-        run_tobj(&mut filter(text).as_bytes())?.0
-    } else {
-        streamed?.0
-    };
+    let models = streamed?.0;
 
     let n: usize = models.iter().map(|m| m.mesh.indices.len() / 3).sum();
     let mut tris = Vec::with_capacity(n);
@@ -131,19 +126,21 @@ pub fn parse_obj_reader<R: Read + Send>(reader: R) -> Result<Scene, (Option<usiz
 
 type LineErr = (Option<usize>, String);
 
-/// Read everything, validate block by block (whole lines only), forward validated blocks to tobj.
-/// Returns the whole text (for the rare rewrite path and for error location) and the scan result.
-fn produce<R: Read>(
-    mut reader: R,
-    tx: SyncSender<Vec<u8>>,
-) -> Result<(Vec<u8>, ScanResult), LineErr> {
+/// Read everything, validate block by block (whole lines only), forward validated blocks to tobj
+/// (filtered once a line needing it was seen: [`filter`] is line by line). Keeps only the lines not
+/// yet validated. Returns the scan result.
+fn produce<R: Read>(mut reader: R, tx: SyncSender<Vec<u8>>) -> Result<ScanResult, LineErr> {
     const BLOCK: usize = 1 << 20;
     let mut tx = Some(tx);
     let mut text: Vec<u8> = Vec::new();
     let mut scanner = Scanner::default();
     let mut done = 0usize; // bytes of `text` already validated and forwarded
     let mut eof = false;
+    let mut first = true;
     while !eof {
+        // Drop what was forwarded: only an unfinished line stays.
+        text.drain(..done);
+        done = 0;
         let start = text.len();
         text.resize(start + BLOCK, 0);
         let mut filled = start;
@@ -174,9 +171,10 @@ fn produce<R: Read>(
         text.truncate(filled);
         // A UTF-8 byte-order mark (written by some Windows tools) is not part of the first
         // statement: left in, it hid the first line from the scan and from tobj.
-        if start == 0 && text.starts_with(b"\xef\xbb\xbf") {
+        if first && text.starts_with(b"\xef\xbb\xbf") {
             text.drain(..3);
         }
+        first = false;
         // Validate up to the last complete line (everything at end of input).
         let end = if eof {
             text.len()
@@ -212,19 +210,17 @@ fn produce<R: Read>(
             }
         };
         scanner.feed(chunk).map_err(|(l, r)| (Some(l), r))?;
-        if scanner.needs_filter {
-            tx = None; // tobj must not see the line needing a rewrite; re-run later on filtered text
-        }
         if let Some(t) = &tx {
-            if t.send(block.to_vec()).is_err() {
+            // Once a line needing a rewrite was seen (it may be in this block), every block goes
+            // through the line-by-line filter; before, none needed it.
+            let out = if scanner.needs_filter { filter(chunk).into_bytes() } else { block.to_vec() };
+            if t.send(out).is_err() {
                 tx = None; // tobj stopped early (its own error); the scan still decides
             }
         }
         done = end;
     }
-    let text_str = std::str::from_utf8(&text).unwrap_or("");
-    let scan = scanner.finish(text_str).map_err(|(l, r)| (Some(l), r))?;
-    Ok((text, scan))
+    scanner.finish().map_err(|(l, r)| (Some(l), r))
 }
 
 /// `BufRead` over the blocks arriving from the validating thread; the closed channel is EOF.
@@ -265,8 +261,6 @@ impl BufRead for ChannelReader {
 struct ScanResult {
     vertices: usize,
     faces: usize,
-    /// Lines tobj would mishandle are present (`l` polylines, `usemtl`, per-vertex colours).
-    needs_filter: bool,
 }
 
 fn parse_floats(words: &mut std::str::SplitWhitespace, n: usize) -> bool {
@@ -289,6 +283,9 @@ struct Scanner {
     /// Largest absolute index referenced, per kind. Absolute indices may point forward (tobj
     /// resolves them after reading the whole file), so they are checked in `finish`.
     max_ref: [u64; 3],
+    /// (kind, index, line) of every absolute index beyond what was defined when it was read: the
+    /// only ones that can be out of range at the end, kept to name the first such line.
+    forward: Vec<(usize, u64, usize)>,
 }
 
 const KIND: [&str; 3] = ["vertex", "texture coordinate", "normal"];
@@ -383,6 +380,9 @@ impl Scanner {
                             return Err(format!("face {what} index {x} is out of range"));
                         } else {
                             self.max_ref[kind] = self.max_ref[kind].max(x as u64);
+                            if x as u64 > have as u64 {
+                                self.forward.push((kind, x as u64, self.line));
+                            }
                         }
                     }
                     if parts.next().is_some() {
@@ -405,13 +405,16 @@ impl Scanner {
         Ok(())
     }
 
-    /// Check forward references against the final totals; `text` is the whole file (only
-    /// re-read on this error path, to find the offending line).
-    fn finish(&self, text: &str) -> Result<ScanResult, (usize, String)> {
+    /// Check forward references against the final totals (the first line with one out of range).
+    fn finish(&self) -> Result<ScanResult, (usize, String)> {
         for (kind, &total) in self.counts.iter().enumerate() {
             if self.max_ref[kind] > total as u64 {
                 let what = KIND[kind];
-                let line = first_line_over(text, kind, total).unwrap_or(self.line);
+                let line = self
+                    .forward
+                    .iter()
+                    .find(|&&(k, x, _)| k == kind && x > total as u64)
+                    .map_or(self.line, |f| f.2);
                 let defined = if total == 1 { what } else { KINDS[kind] };
                 return Err((
                     line,
@@ -422,26 +425,8 @@ impl Scanner {
         Ok(ScanResult {
             vertices: self.counts[0],
             faces: self.faces,
-            needs_filter: self.needs_filter,
         })
     }
-}
-
-fn first_line_over(text: &str, kind: usize, total: usize) -> Option<usize> {
-    for (i, line) in text.split('\n').enumerate() {
-        let mut words = line.split_whitespace();
-        if words.next() != Some("f") {
-            continue;
-        }
-        for w in words {
-            if let Some(Ok(x)) = w.split('/').nth(kind).map(|p| p.parse::<i64>()) {
-                if x > 0 && x as u64 > total as u64 {
-                    return Some(i + 1);
-                }
-            }
-        }
-    }
-    None
 }
 
 /// Copy of the text with lines tobj mishandles neutralised, keeping line numbering:

@@ -38,15 +38,18 @@ pub struct Scene {
 impl Scene {
     /// Build a scene from triangles, dropping non-finite ones.
     pub fn from_triangles(tris: impl IntoIterator<Item = Triangle>) -> Scene {
-        let mut s = Scene::default();
-        for t in tris {
-            if t.is_finite() {
-                s.triangles.push(t);
-            } else {
-                s.dropped_triangles += 1;
-            }
-        }
-        s
+        let mut dropped = 0u64;
+        // From a Vec this filters in place (the collect reuses its buffer) instead of growing a
+        // second Vec beside the input.
+        let triangles = tris
+            .into_iter()
+            .filter(|t| {
+                let ok = t.is_finite();
+                dropped += !ok as u64;
+                ok
+            })
+            .collect();
+        Scene { triangles, dropped_triangles: dropped }
     }
     pub fn bounds(&self) -> Aabb {
         let mut b = Aabb::EMPTY;

@@ -337,3 +337,38 @@ fn truncated_gzip_says_truncated() {
     assert!(e.reason.starts_with("truncated gzip file"), "{e}");
     assert!(e.to_string().contains("cut.obj.gz"), "{e}");
 }
+
+/// The text streams to tobj in blocks of 1 MiB and is never held whole; lines tobj mishandles
+/// (vertex colours, `usemtl`, polylines) are filtered block by block from the first one on. A file
+/// of several blocks with such lines only in its later blocks loads exactly as the same file
+/// without them, and an index out of range in its last block is reported at its line.
+#[test]
+fn multi_block_files_filter_late_lines_and_report_late_errors() {
+    let n: usize = 60_000; // ~1.6 MB of vertex lines: two blocks at least
+    let mut plain = String::new();
+    let mut marked = String::new();
+    for i in 0..n {
+        let v = format!("v {} {} {}", i % 97, (i / 97) % 89, i / 8633);
+        plain.push_str(&v);
+        plain.push('\n');
+        marked.push_str(&v);
+        // Colours only on the last third, a material switch and a polyline near the end.
+        marked.push_str(if i > 2 * n / 3 { " 0.5 0.5 0.5\n" } else { "\n" });
+        if i == n - 10 {
+            marked.push_str("usemtl red\nl 1 2 3\n");
+            plain.push_str("# c\n# c\n");
+        }
+    }
+    let faces: String = (1..n - 2).step_by(3).map(|i| format!("f {} {} {}\n", i, i + 1, i + 2)).collect();
+    plain.push_str(&faces);
+    marked.push_str(&faces);
+    let (a, b) = (load_str(&plain).unwrap(), load_str(&marked).unwrap());
+    assert_eq!(a.triangles.len(), (n - 3).div_ceil(3));
+    assert_eq!(a.triangles, b.triangles);
+    // A forward index beyond the file's vertices, on the last line.
+    let lines = marked.lines().count();
+    let bad = format!("{marked}f 1 2 {}\n", n + 5);
+    let (line, reason) = err_line(&bad);
+    assert_eq!(line, Some(lines + 1), "{reason}");
+    assert!(reason.contains("out of range"), "{reason}");
+}
