@@ -283,8 +283,9 @@ struct Scanner {
     /// Largest absolute index referenced, per kind. Absolute indices may point forward (tobj
     /// resolves them after reading the whole file), so they are checked in `finish`.
     max_ref: [u64; 3],
-    /// (kind, index, line) of every absolute index beyond what was defined when it was read: the
-    /// only ones that can be out of range at the end, kept to name the first such line.
+    /// (kind, index, line) of each absolute index beyond what was defined when it was read and
+    /// above every index of its kind before it: the only ones that can be the first out of range
+    /// at the end, kept to name its line.
     forward: Vec<(usize, u64, usize)>,
 }
 
@@ -379,10 +380,12 @@ impl Scanner {
                         } else if x as u64 > MAX_INDEX {
                             return Err(format!("face {what} index {x} is out of range"));
                         } else {
-                            self.max_ref[kind] = self.max_ref[kind].max(x as u64);
-                            if x as u64 > have as u64 {
+                            // Only a new largest index can be the first one out of range at the
+                            // end (every earlier index is smaller), so only those are kept.
+                            if x as u64 > have as u64 && x as u64 > self.max_ref[kind] {
                                 self.forward.push((kind, x as u64, self.line));
                             }
+                            self.max_ref[kind] = self.max_ref[kind].max(x as u64);
                         }
                     }
                     if parts.next().is_some() {

@@ -317,6 +317,7 @@ impl NodeSource<8> for CwBvh {
     fn addr(&self, code: u32) -> Option<*const u8> {
         self.nodes.get(code as usize).map(|n| n as *const CwNode as *const u8)
     }
+    const NODE_BYTES: usize = std::mem::size_of::<CwNode>();
 }
 
 #[cfg(test)]

@@ -553,6 +553,8 @@ pub(crate) trait NodeSource<const W: usize> {
     fn first(&self, code: u32) -> Option<usize>;
     /// Where inner child `code`'s node starts in memory (for a prefetch; None: nothing to fetch).
     fn addr(&self, code: u32) -> Option<*const u8>;
+    /// Bytes of one node (what a prefetch of it covers).
+    const NODE_BYTES: usize;
 }
 
 /// The traversal's view of a wide BVH: its nodes and the triangles in leaf-slot order.
@@ -594,6 +596,7 @@ impl<const W: usize> NodeSource<W> for Plain<'_> {
     fn addr(&self, code: u32) -> Option<*const u8> {
         self.data.get(code as usize * 7 * W).map(|w| w as *const u32 as *const u8)
     }
+    const NODE_BYTES: usize = 28 * W;
 }
 
 /// All children's slab tests of one node at once: entry distances into `dist`, a bit per child hit.
@@ -738,17 +741,20 @@ impl<N> View<'_, N> {
         #[cfg(target_arch = "x86_64")]
         {
             use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-            let p = if code & LEAF_BIT != 0 {
-                self.src.first(code).and_then(|f| self.tris.get(f)).map(|t| t as *const WTri as *const u8)
+            // A leaf: its first LEAF_BLOCK triangles (one four-wide test); a node: all of it.
+            let (p, bytes) = if code & LEAF_BIT != 0 {
+                let t = self.src.first(code).and_then(|f| self.tris.get(f));
+                (t.map(|t| t as *const WTri as *const u8), LEAF_BLOCK as usize * std::mem::size_of::<WTri>())
             } else {
-                self.src.addr(code)
+                (self.src.addr(code), N::NODE_BYTES)
             };
             if let Some(p) = p {
-                // SAFETY: prefetching never faults; the lines are those of a node or triangle in bounds.
-                unsafe {
-                    for line in 0..(W * 28).div_ceil(64) {
-                        _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(line * 64) as *const i8);
-                    }
+                // Every cache line the object touches, from the line of its first byte.
+                let (first, last) = (p as usize & !63, (p as usize + bytes - 1) & !63);
+                for line in (first..=last).step_by(64) {
+                    // SAFETY: prefetching never faults (the lines may run past the object; no
+                    // memory is read by the program through them).
+                    unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(line.wrapping_sub(p as usize)) as *const i8) };
                 }
             }
         }

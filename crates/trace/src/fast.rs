@@ -33,6 +33,8 @@ pub struct WTri {
     /// child names its first slot only, and its triangles run to this mark (as Embree marks the
     /// last primitive of a leaf), so a leaf visit reads no leaf table before its triangles.
     pub last: u32,
+    /// Zero. Explicit so that the four-wide test's 16-byte loads read no padding.
+    pub pad: u32,
 }
 
 /// Triangles of a BVH's leaves in slot order: `tris[i]` is scene triangle `prim_indices[i]`.
@@ -54,11 +56,13 @@ impl TriStore {
                     v: t.v.map(|v| v.to_array()),
                     prim: p,
                     last: 0,
+                    pad: 0,
                 },
                 None => WTri {
                     v: [[f32::NAN; 3]; 3],
                     prim: p,
                     last: 0,
+                    pad: 0,
                 },
             })
             .collect();
@@ -300,7 +304,7 @@ unsafe fn watertight4(r: &WoopRay, q: &[WTri; 4], best: &mut Hit) -> (u32, bool)
             let (t2, t3) = (_mm_unpackhi_ps(r0, r1), _mm_unpackhi_ps(r2, r3));
             [_mm_movelh_ps(t0, t1), _mm_movehl_ps(t1, t0), _mm_movelh_ps(t2, t3), _mm_movehl_ps(t3, t2)]
         };
-        // Floats 0..12 of a WTri are v0.xyz, v1.xyz, v2.xyz, prim and last (as bits).
+        // Floats 0..12 of a WTri are v0.xyz, v1.xyz, v2.xyz, prim, last and pad (as bits).
         let [x0, y0, z0, x1] = cols(0);
         let [y1, z1, x2, y2] = cols(4);
         let [z2, _, last, _] = cols(8);
@@ -450,48 +454,20 @@ impl BoxTest for RayBox {
     }
 }
 
-/// Two sibling nodes on one 64-byte cache line: a node's two child boxes, which every visit
-/// reads together, arrive with one memory access.
-#[repr(C, align(64))]
-#[derive(Clone, Copy)]
-struct Pair([Node; 2]);
-
-/// A binary BVH prepared for the timed path: its 32-byte nodes copied so that siblings share a
-/// cache line, in depth-first order (a subtree's nodes close together), and its triangles in slot
-/// order. The visiting order and hence the hits are those of the BVH as given.
+/// A binary BVH prepared for the timed path: its nodes (the 32-byte nodes as they are: siblings
+/// adjacent, so both child boxes of a node share a cache line) and its triangles in slot order.
 pub struct FastBvh2<'a> {
-    pairs: Vec<Pair>,
-    len: usize,
+    nodes: &'a [Node],
     store: TriStore,
-    _bvh: std::marker::PhantomData<&'a Bvh>,
 }
 
 impl<'a> FastBvh2<'a> {
-    /// O(nodes + triangles): copies nodes and triangles (done before timing).
+    /// O(triangles): copies the triangles into slot order (done before timing).
     pub fn new(bvh: &'a Bvh, tris: &[Triangle]) -> FastBvh2<'a> {
-        let (pairs, len) = match pair_up(&bvh.nodes) {
-            Some(p) => {
-                let len = 2 * p.len();
-                (p, len)
-            }
-            // A malformed tree (an index out of range, a node reached twice) is traced as it is.
-            None => {
-                let pad = Node { bounds: Aabb::EMPTY, first: 0, count: 0 };
-                let p = bvh.nodes.chunks(2).map(|c| Pair([c[0], *c.get(1).unwrap_or(&pad)])).collect();
-                (p, bvh.nodes.len())
-            }
-        };
         FastBvh2 {
-            pairs,
-            len,
+            nodes: &bvh.nodes,
             store: TriStore::new(&bvh.prim_indices, tris),
-            _bvh: std::marker::PhantomData,
         }
-    }
-
-    fn nodes(&self) -> &[Node] {
-        // SAFETY: `Pair` is two `Node`s (repr(C), 64 bytes, no padding), `len <= 2 * pairs.len()`.
-        unsafe { std::slice::from_raw_parts(self.pairs.as_ptr() as *const Node, self.len) }
     }
 
     /// Closest hits with the watertight f32 test, no counters: the timed path.
@@ -508,44 +484,11 @@ impl<'a> FastBvh2<'a> {
     fn one<T: TriTest, const STATS: bool>(&self, ray: &Ray, stack: &mut Stack) -> (Hit, u32, u32) {
         let sr = SlabRay::new(ray);
         if sr.parallel {
-            bvh2_one::<T, RayBox, STATS>(self.nodes(), &self.store.tris, ray, &RayBox::new(ray), sr.inv, stack)
+            bvh2_one::<T, RayBox, STATS>(self.nodes, &self.store.tris, ray, &RayBox::new(ray), sr.inv, stack)
         } else {
-            bvh2_one::<T, SlabRay, STATS>(self.nodes(), &self.store.tris, ray, &sr, sr.inv, stack)
+            bvh2_one::<T, SlabRay, STATS>(self.nodes, &self.store.tris, ray, &sr, sr.inv, stack)
         }
     }
-}
-
-/// The nodes re-laid as sibling pairs in depth-first order: the root alone in pair 0, every
-/// inner node's children in one pair (left, right kept). None for a malformed tree.
-fn pair_up(nodes: &[Node]) -> Option<Vec<Pair>> {
-    let Some(&root) = nodes.first() else {
-        return Some(Vec::new());
-    };
-    let pad = Node { bounds: Aabb::EMPTY, first: 0, count: 0 };
-    let mut out = vec![Pair([root, pad])];
-    let mut seen = vec![false; nodes.len()];
-    seen[0] = true;
-    // (index in the new layout, index in `nodes`) of nodes whose children are still to place.
-    let mut todo = vec![(0usize, 0usize)];
-    while let Some((new, old)) = todo.pop() {
-        let n = nodes[old];
-        if n.count > 0 {
-            continue;
-        }
-        let l = n.first as usize;
-        let (Some(&a), Some(&b)) = (nodes.get(l), nodes.get(l.wrapping_add(1))) else {
-            return None;
-        };
-        if std::mem::replace(&mut seen[l], true) | std::mem::replace(&mut seen[l + 1], true) {
-            return None;
-        }
-        let p = out.len();
-        out.push(Pair([a, b]));
-        out[new / 2].0[new % 2].first = u32::try_from(2 * p).ok()?;
-        todo.push((2 * p + 1, l + 1));
-        todo.push((2 * p, l));
-    }
-    Some(out)
 }
 
 /// Runs `one` over all rays in parallel (rayon chunks, a stack per task), hits only.
@@ -620,10 +563,13 @@ fn bvh2_one<T: TriTest, B: BoxTest, const STATS: bool>(
                 let hr = rb.hit(&rn.bounds, best.t);
                 match (hl, hr) {
                     (Some(tl), Some(tr)) => {
-                        let (far, f, t, near) = if tr < tl { (ln, l, tl, l + 1) } else { (rn, l + 1, tr, l) };
-                        prefetch_below(nodes, tris, far);
-                        stack.push((f as u32, t));
-                        cur = near as u32;
+                        if tr < tl {
+                            stack.push((l as u32, tl));
+                            cur = l as u32 + 1;
+                        } else {
+                            stack.push((l as u32 + 1, tr));
+                            cur = l as u32;
+                        }
                         continue;
                     }
                     (Some(_), None) => {
@@ -646,27 +592,6 @@ fn bvh2_one<T: TriTest, B: BoxTest, const STATS: bool>(
     }
     let hit = best.found();
     (hit, steps, tests)
-}
-
-/// Asks for what a visit of `n` (pushed on the stack) reads: its children's pair, or its leaf's
-/// first triangle. A ray that misses below the near child pops it next, and the memory is then
-/// on its way instead of one more cache miss in line (large scenes do not fit the caches).
-#[inline(always)]
-fn prefetch_below(nodes: &[Node], tris: &[WTri], n: &Node) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        let p = if n.count > 0 {
-            tris.get(n.first as usize).map(|t| t as *const WTri as *const i8)
-        } else {
-            nodes.get(n.first as usize).map(|c| c as *const Node as *const i8)
-        };
-        if let Some(p) = p {
-            // SAFETY: a prefetch never faults; the address is in bounds.
-            unsafe { std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p) };
-        }
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = (nodes, tris, n);
 }
 
 /// The tolerance of the f32 path against the exact one, per ray: the same triangle; or both hit
