@@ -6,6 +6,14 @@ use bvhlab_pipeline::{with_threads, ChainSpec, Key, RaySpec, ResultRow, Runner, 
 
 const SCENE: &str = "gen:sphere:n=3000";
 
+/// The layout stage's `peak_build_bytes` comes from a process-wide counting allocator whose peak
+/// every measurement resets (`memtrack`): two tests running layout stages at once reset each
+/// other's peaks (`bvh2_through_the_pipeline` failed so in CI). The tests of this file take turns.
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn chain(build: &str, layout: Option<&str>, rays: bool) -> ChainSpec {
     let mut c = ChainSpec::new(SCENE, build);
     c.repeat = 2;
@@ -26,6 +34,7 @@ fn summary(r: &Runner, row: &ResultRow) -> LayoutSummary {
 
 #[test]
 fn bvh2_through_the_pipeline() {
+    let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
     let plain = run(&mut r, &chain("binned-sah", None, true));
@@ -63,6 +72,7 @@ fn bvh2_through_the_pipeline() {
 /// no spread, at any machine load; and so is `auto` when it picks bvh2.
 #[test]
 fn bvh2_against_itself_is_exactly_one() {
+    let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
     let mut c = chain("binned-sah", Some("bvh2"), true);
@@ -98,6 +108,7 @@ fn bvh2_against_itself_is_exactly_one() {
 /// Issue 16: every timed quantity keeps its runs and a spread ((max - min) / median).
 #[test]
 fn timed_fields_keep_runs_and_spreads() {
+    let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
     let mut c = chain("lbvh", Some("qbvh_chunks"), true);
@@ -185,6 +196,7 @@ fn timed_fields_keep_runs_and_spreads() {
 
 #[test]
 fn invalid_specs_are_input_errors() {
+    let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
     for bad in [
@@ -208,6 +220,7 @@ fn invalid_specs_are_input_errors() {
 
 #[test]
 fn qbvh_chunks_is_smaller_and_exact() {
+    let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
     let b = run(&mut r, &chain("sweep-sah", Some("bvh2"), true));
@@ -239,6 +252,7 @@ fn qbvh_chunks_is_smaller_and_exact() {
 /// test), fewer node visits, their own timing (`mrays_per_s` is the layout's), bytes counted.
 #[test]
 fn wide_layouts_through_the_pipeline() {
+    let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
     let b = run(&mut r, &chain("binned-sah", Some("bvh2"), true));
@@ -259,6 +273,7 @@ fn wide_layouts_through_the_pipeline() {
 
 #[test]
 fn octrees_share_one_node_across_builders() {
+    let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
     let a = run(&mut r, &chain("binned-sah", Some("octree_1bit"), true));
@@ -295,6 +310,7 @@ fn octrees_share_one_node_across_builders() {
 
 #[test]
 fn auto_with_thresholds_that_do_not_depend_on_timing() {
+    let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
     // Nothing qualifies but bvh2 (no layout is 10^4 times faster).
@@ -386,6 +402,7 @@ fn auto_with_thresholds_that_do_not_depend_on_timing() {
 /// flagged (the bvh2 fallback under a limit below 1 is the case that does not depend on timing).
 #[test]
 fn auto_budget_and_over_limit_are_reported() {
+    let _serial = serial();
     let dir = tempfile::tempdir().unwrap();
     let mut r = Runner::new(Store::open(dir.path()).unwrap());
     // A budget far below one trace: only bvh2 (the fallback) is built, everything else is cut.
@@ -453,6 +470,7 @@ fn auto_budget_and_over_limit_are_reported() {
 
 #[test]
 fn layouts_are_identical_at_any_thread_count() {
+    let _serial = serial();
     for spec in ["qbvh_chunks:frame=parent", "octree_1bit:fill=dense"] {
         let mut hashes = Vec::new();
         for threads in [1, 2] {
