@@ -1,6 +1,7 @@
 //! `cwbvh`: the compressed 8-wide node of Ylitie, Karras and Laine 2017 ("Efficient Incoherent Ray
 //! Traversal on GPUs Through Compressed Wide BVHs", section 3.1), 80 bytes per node, built from the
-//! `bvh8` collapse (`crate::wide`) of the binary BVH.
+//! `bvh8` collapse (`crate::wide`, SAH-optimal or greedy: the same `collapse` parameter) of the
+//! binary BVH.
 //!
 //! A node stores the origin `p` of a grid (its box minimum), per axis the grid step as a power of
 //! two (an 8-bit exponent `e`: step 2^(e-127), the smallest with 255 steps covering the box), and
@@ -17,7 +18,7 @@
 //! entry distance as `bvh8` does. The traversal decodes a node's six rows to f32 (vectorized with
 //! AVX2 when the CPU has it) and runs `bvh8`'s box test and walk, so the two layouts differ only in
 //! what a node costs to read: 80 bytes against 224.
-use crate::wide::{self, NodeSource, Simd, View, WideBvh, EMPTY, LEAF_BIT};
+use crate::wide::{self, Collapse, NodeSource, Simd, View, WideBvh, EMPTY, LEAF_BIT};
 use crate::Memory;
 use bvhlab_bvh::{Bvh, CostParams, Refs};
 use bvhlab_geom::{Aabb, Triangle, Vec3};
@@ -30,12 +31,13 @@ pub const METHOD: Method = Method::new(
     "cwbvh",
     "compressed 8-wide BVH: bvh8's collapse in 80-byte nodes, child boxes quantized to 8 bits on a power-of-two grid per node",
     "Ylitie, Karras and Laine 2017 (CWBVH, section 3.1)",
-    &[],
+    &[wide::COLLAPSE_PARAM],
 )
 // 2: the traversal reads a leaf's triangles up to the store's end mark (its stored nodes are
 // unchanged; the bump re-measures its trace times with the current traversal).
 // 3: built from bvh8 version 3 (combined leaves).
-.with_version(3);
+// 4: built from bvh8 version 4 (SAH-optimal collapse by default).
+.with_version(4);
 
 /// One compressed node (80 bytes; see the module doc).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -118,6 +120,8 @@ pub struct CwBvh {
     pub prim_indices: Vec<u32>,
     /// Exact box of the root (tested once per ray before the traversal).
     pub root_bounds: Aabb,
+    /// The collapse the nodes come from (`bvh8`'s with the same parameter).
+    pub collapse: Collapse,
 }
 
 /// Exponent `k` of the smallest power-of-two step with `255 * 2^k >= extent`, within
@@ -159,12 +163,18 @@ fn quantize(p: f32, s: f32, lo: f32, hi: f32) -> Result<(u8, u8), String> {
 impl CwBvh {
     /// `bvh8`'s collapse of `bvh`, compressed (module doc).
     pub fn build(bvh: &Bvh) -> Result<CwBvh, String> {
-        let w = WideBvh::build(bvh, 8)?;
+        Self::build_with(bvh, Collapse::default())
+    }
+
+    /// [`Self::build`] with a choice of collapse.
+    pub fn build_with(bvh: &Bvh, collapse: Collapse) -> Result<CwBvh, String> {
+        let w = WideBvh::build_with(bvh, 8, collapse)?;
         let mut out = CwBvh {
             nodes: Vec::with_capacity(w.nodes()),
             leaves: Vec::with_capacity(w.leaves.len()),
             prim_indices: w.prim_indices.clone(),
             root_bounds: w.root_bounds,
+            collapse,
         };
         if w.nodes() == 0 {
             return Ok(out);

@@ -20,6 +20,7 @@ pub mod octree;
 pub mod octree_1bit;
 pub mod qbvh_chunks;
 pub mod wide;
+pub mod wide_collapse;
 
 use bvhlab_bvh::{Bvh, CostParams, Refs};
 use bvhlab_geom::Triangle;
@@ -208,9 +209,9 @@ pub fn build_until(
 ) -> Result<Layout, String> {
     Ok(match spec.name.as_str() {
         "bvh2" => Layout::Bvh2(bvh2::Bvh2::build(bvh)),
-        "bvh4" => Layout::Wide(wide::WideBvh::build(bvh, 4)?),
-        "bvh8" => Layout::Wide(wide::WideBvh::build(bvh, 8)?),
-        "cwbvh" => Layout::Cw(cwbvh::CwBvh::build(bvh)?),
+        "bvh4" => Layout::Wide(wide::WideBvh::build_with(bvh, 4, wide::Collapse::from_spec(spec)?)?),
+        "bvh8" => Layout::Wide(wide::WideBvh::build_with(bvh, 8, wide::Collapse::from_spec(spec)?)?),
+        "cwbvh" => Layout::Cw(cwbvh::CwBvh::build_with(bvh, wide::Collapse::from_spec(spec)?)?),
         "qbvh_chunks" => Layout::QbvhChunks(qbvh_chunks::QbvhChunks::build(bvh, &qbvh_chunks::Config::from_spec(spec)?)?),
         "octree" => Layout::Octree(octree::Octree::build_until(
             tris,
@@ -327,7 +328,7 @@ impl Layout {
     pub fn uncompressed(&self, bvh: &Bvh, tris: &[Triangle]) -> Option<Layout> {
         match self {
             Layout::Bvh2(_) | Layout::Octree(_) | Layout::Wide(_) => None,
-            Layout::Cw(_) => Some(Layout::Wide(wide::WideBvh::build(bvh, 8).ok()?)),
+            Layout::Cw(l) => Some(Layout::Wide(wide::WideBvh::build_with(bvh, 8, l.collapse).ok()?)),
             Layout::QbvhChunks(_) => Some(Layout::Bvh2(bvh2::Bvh2::build(bvh))),
             Layout::Octree1Bit(l) => l.uncompressed(tris).map(Layout::Octree),
         }

@@ -2,13 +2,18 @@
 //! child boxes stored structure-of-arrays, all children's boxes tested at once with SIMD, children
 //! visited nearest first.
 //!
-//! Collapse: the greedy method of Wald, Benthin and Boulos 2008 ("Getting rid of packets", section
-//! 3.1; also Dammertz et al. 2008): a wide node starts with the binary node's two children and
-//! repeatedly replaces the inner child of largest surface area by its two children until it has
-//! `width` children or only leaves. Pulling the largest box first is what the SAH favours: the
-//! larger a box, the likelier a ray enters it, so skipping it saves the most node visits. (Ylitie
-//! et al. 2017's DP is the optimal alternative; not done.) Leaves: a binary subtree with at most
-//! [`LEAF_BLOCK`] (4) triangle references is one leaf (a binary leaf with more stays as it is):
+//! Collapse (layout parameter `collapse`): by default SAH-optimal, the dynamic programme of Ylitie,
+//! Karras and Laine 2017 (section 3.1; `crate::wide_collapse`), which over every binary node and
+//! slot count picks the cheapest way to share a wide node's slots among binary subtrees and which
+//! subtrees become leaves, under a cost of one unit per wide node entered and one per four-triangle
+//! leaf test, each weighted by its box's area. `greedy` is the method of Wald, Benthin and Boulos
+//! 2008 ("Getting rid of packets", section 3.1; also Dammertz et al. 2008): a wide node starts with
+//! the binary node's two children and repeatedly replaces the inner child of largest surface area
+//! by its two children until it has `width` children or only leaves. Measured on the four
+//! reference scenes (docs/decisions.md), the optimal collapse has 3-10 % lower wide SAH cost and
+//! traces 0-13 % faster. Leaves: a binary subtree with at most [`LEAF_BLOCK`] (4) triangle
+//! references may be one leaf (a binary leaf with more stays as it is; greedy makes every such
+//! subtree a leaf, the programme only where that is cheaper):
 //! four triangles are one SSE watertight test (`TriTest::test_leaf`), so a ray tests the four for
 //! about the price of one and skips the binary levels between them, as tinybvh's BVH8_CPU and
 //! Embree's triangle4 leaves do. Triangles are stored in the order the leaves are made (the wide
@@ -34,29 +39,70 @@
 use crate::Memory;
 use bvhlab_bvh::{Bvh, CostParams, Node, Refs};
 use bvhlab_geom::{Aabb, Triangle, Vec3};
-use bvhlab_params::Method;
+use bvhlab_params::{Kind, Method, ParamSpec};
 use bvhlab_trace::fast::{Exact, SlabRay, TriTest, Watertight};
 use bvhlab_trace::{Hit, Ray, RayBox, Stack, TraceStats, TriStore, WTri, SLAB_ROBUST};
 use serde::{Deserialize, Serialize};
+pub use crate::wide_collapse::CollapseCost;
+use crate::wide_collapse::Optimal;
+
+/// How [`WideBvh::build_with`] turns binary nodes into wide ones (layout parameter `collapse`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Collapse {
+    /// Wald et al. 2008: the largest-area inner child opened first (module doc).
+    Greedy,
+    /// Ylitie et al. 2017's dynamic programme with these weights (`wide_collapse`).
+    Optimal(CollapseCost),
+}
+
+impl Default for Collapse {
+    /// `sah`: the programme with a wide node entered and a four-triangle leaf test weighted alike
+    /// (measured against 1/0.5, 1/2, 1/4 and leaves of up to 8: docs/decisions.md).
+    fn default() -> Self {
+        Collapse::Optimal(CollapseCost { c_node: 1.0, c_leaf: 1.0, max_leaf: LEAF_BLOCK, block: 4 })
+    }
+}
+
+impl Collapse {
+    /// The layout parameter `collapse` of `spec` (`sah` or `greedy`).
+    pub fn from_spec(spec: &crate::LayoutSpec) -> Result<Collapse, String> {
+        match spec.get::<String>("collapse")?.as_str() {
+            "sah" => Ok(Collapse::default()),
+            "greedy" => Ok(Collapse::Greedy),
+            o => Err(format!("layout `{}`: collapse must be `sah` or `greedy` (got `{o}`)", spec.name)),
+        }
+    }
+}
+
+/// The `collapse` parameter of bvh4, bvh8 and cwbvh.
+pub const COLLAPSE_PARAM: ParamSpec = ParamSpec {
+    name: "collapse",
+    default: "sah",
+    kind: Kind::Choice(&["sah", "greedy"]),
+    about: "sah: SAH-optimal collapse of the binary BVH (Ylitie et al. 2017's dynamic programme); greedy: \
+            largest-area child opened first (Wald et al. 2008)",
+    in_label: false,
+};
 
 pub const METHOD4: Method = Method::new(
     "bvh4",
-    "4-wide BVH: greedy SAH collapse of the binary BVH (largest-area child first), subtrees of up to 4 triangles one leaf tested four at a time, SoA child boxes, SSE box test, nearest child first",
-    "Wald et al. 2008 (greedy collapse); Dammertz et al. 2008 (QBVH)",
-    &[],
+    "4-wide BVH: SAH-optimal collapse of the binary BVH (or greedy), subtrees of up to 4 triangles one leaf tested four at a time, SoA child boxes, SSE box test, nearest child first",
+    "Ylitie et al. 2017 (optimal collapse); Wald et al. 2008 (greedy collapse); Dammertz et al. 2008 (QBVH)",
+    &[COLLAPSE_PARAM],
 )
 // 2: a leaf child's code names its first triangle slot, not an index into `leaves`.
 // 3: subtrees of at most LEAF_BLOCK references combined into one leaf; own prim_indices order.
-.with_version(3);
+// 4: SAH-optimal collapse by default (parameter `collapse`).
+.with_version(4);
 
 pub const METHOD8: Method = Method::new(
     "bvh8",
-    "8-wide BVH: greedy SAH collapse of the binary BVH (largest-area child first), subtrees of up to 4 triangles one leaf tested four at a time, SoA child boxes, AVX2 box test (scalar fallback), nearest child first",
-    "Wald et al. 2008 (greedy collapse); Ylitie et al. 2017 (8-wide)",
-    &[],
+    "8-wide BVH: SAH-optimal collapse of the binary BVH (or greedy), subtrees of up to 4 triangles one leaf tested four at a time, SoA child boxes, AVX2 box test (scalar fallback), nearest child first",
+    "Ylitie et al. 2017 (optimal collapse, 8-wide); Wald et al. 2008 (greedy collapse)",
+    &[COLLAPSE_PARAM],
 )
-// 2, 3: as METHOD4.
-.with_version(3);
+// 2, 3, 4: as METHOD4.
+.with_version(4);
 
 /// Child code of an unused slot.
 pub const EMPTY: u32 = u32::MAX;
@@ -67,7 +113,8 @@ pub const LEAF_BLOCK: u32 = 4;
 
 /// References below each binary node (leaves' counts summed), checking on the way that every index
 /// is in range and no node is reached twice.
-fn subtree_refs(nodes: &[Node]) -> Result<Vec<u32>, String> {
+/// Also returns the nodes in pre-order (parents before children).
+pub(crate) fn subtree_refs(nodes: &[Node]) -> Result<(Vec<u32>, Vec<usize>), String> {
     let mut refs = vec![0u32; nodes.len()];
     let mut seen = vec![false; nodes.len()];
     let mut order = Vec::with_capacity(nodes.len());
@@ -92,7 +139,7 @@ fn subtree_refs(nodes: &[Node]) -> Result<Vec<u32>, String> {
         let n = &nodes[i];
         refs[i] = if n.is_leaf() { n.count } else { refs[n.first as usize].saturating_add(refs[n.first as usize + 1]) };
     }
-    Ok(refs)
+    Ok((refs, order))
 }
 /// Set in a child code that names a leaf (the rest is its first triangle slot).
 pub const LEAF_BIT: u32 = 1 << 31;
@@ -121,6 +168,11 @@ impl WideBvh {
     /// Greedy collapse of `bvh` (module doc). Errors on a malformed input (index out of range or a
     /// node reached twice), which a validated BVH never is.
     pub fn build(bvh: &Bvh, width: usize) -> Result<WideBvh, String> {
+        Self::build_with(bvh, width, Collapse::default())
+    }
+
+    /// [`Self::build`] with a choice of collapse.
+    pub fn build_with(bvh: &Bvh, width: usize, collapse: Collapse) -> Result<WideBvh, String> {
         assert!(width == 4 || width == 8, "width 4 or 8");
         let mut w = WideBvh {
             width: width as u32,
@@ -134,14 +186,30 @@ impl WideBvh {
             return Ok(w);
         };
         w.root_bounds = root.bounds;
-        let refs = subtree_refs(nodes)?;
+        let (refs, order) = subtree_refs(nodes)?;
+        let optimal = match collapse {
+            Collapse::Greedy => None,
+            Collapse::Optimal(c) => Some(Optimal::plan(nodes, &order, &refs, width, c)),
+        };
+        drop(order);
         // A binary subtree of at most LEAF_BLOCK references is one leaf here (module doc).
-        let leafish = |k: u32| nodes[k as usize].is_leaf() || refs[k as usize] <= LEAF_BLOCK;
+        let leafish = |k: u32| match &optimal {
+            None => nodes[k as usize].is_leaf() || refs[k as usize] <= LEAF_BLOCK,
+            Some(o) => o.is_leaf(k),
+        };
         let mut work = vec![(w.alloc(), 0u32)];
+        let mut kids: Vec<u32> = Vec::with_capacity(width);
         while let Some((wi, bn)) = work.pop() {
             let n = &nodes[bn as usize];
-            let mut kids: Vec<u32> = if leafish(bn) { vec![bn] } else { vec![n.first, n.first + 1] };
-            while kids.len() < width {
+            kids.clear();
+            if leafish(bn) {
+                kids.push(bn);
+            } else if let Some(o) = &optimal {
+                o.children(nodes, bn, &mut kids);
+            } else {
+                kids.extend([n.first, n.first + 1]);
+            }
+            while optimal.is_none() && kids.len() < width {
                 // The inner child of largest surface area (first one on ties: deterministic).
                 let mut pick: Option<(usize, f64)> = None;
                 for (i, &k) in kids.iter().enumerate() {
@@ -312,6 +380,24 @@ impl WideBvh {
         let root_sa = self.root_bounds.area();
         let degenerate = !(root_sa > 0.0);
         let ratio = |sa: f64| if degenerate { 1.0 } else { sa / root_sa };
+        let (inner, leaf) = self.area_sums(ratio, |count| count as f64);
+        cost.c_t as f64 * inner + cost.c_i as f64 * leaf
+    }
+
+    /// The collapse programme's objective on this tree (`wide_collapse`): `c_node` times each
+    /// node's area (the union of its children's boxes; the root's box for the root) plus `c_leaf`
+    /// times each leaf's area per started `block` triangles; areas relative to the root's (as the
+    /// programme's, `wide_collapse::area_norm`).
+    pub fn collapse_cost(&self, w: CollapseCost) -> f64 {
+        let ra = self.root_bounds.area();
+        let norm = if ra > 0.0 && ra.is_finite() { 1.0 / ra } else { 1.0 };
+        let (inner, leaf) = self.area_sums(|a| a * norm, |count| count.div_ceil(w.block).max(1) as f64);
+        w.c_node as f64 * inner + w.c_leaf as f64 * leaf
+    }
+
+    /// Sums over the tree of `ratio(area)` of every node (the union of its children's boxes; the
+    /// root's box for the root) and of `ratio(area) * per_leaf(count)` of every leaf.
+    fn area_sums(&self, ratio: impl Fn(f64) -> f64, per_leaf: impl Fn(u32) -> f64) -> (f64, f64) {
         let (mut inner, mut leaf) = (0.0f64, 0.0f64);
         for n in 0..self.nodes() {
             let mut u = Aabb::EMPTY;
@@ -322,12 +408,12 @@ impl WideBvh {
                 }
                 u = u.union(&b);
                 if let Some(l) = self.leaf_index(code) {
-                    leaf += ratio(b.area()) * self.leaves[l][1] as f64;
+                    leaf += ratio(b.area()) * per_leaf(self.leaves[l][1]);
                 }
             }
-            inner += ratio(if n == 0 { root_sa } else { u.area() });
+            inner += ratio(if n == 0 { self.root_bounds.area() } else { u.area() });
         }
-        cost.c_t as f64 * inner + cost.c_i as f64 * leaf
+        (inner, leaf)
     }
 
     /// Every triangle referenced exactly once; each node and leaf reached once from the root;

@@ -5,7 +5,8 @@
 mod common;
 use bvhlab_bvh::{Bvh, Node};
 use bvhlab_geom::Vec3;
-use bvhlab_layout::wide::{Simd, WideBvh, EMPTY, LEAF_BIT, LEAF_BLOCK};
+use bvhlab_layout::wide::{Collapse, CollapseCost, Simd, WideBvh, EMPTY, LEAF_BIT, LEAF_BLOCK};
+use bvhlab_layout::wide_collapse::optimal_cost;
 use bvhlab_layout::{build, Layout};
 use bvhlab_trace::fast::{Exact, Watertight};
 use bvhlab_trace::{brute_force, check_agreement, Ray, TriStore};
@@ -38,8 +39,8 @@ fn wide_layouts_match_brute_force() {
     for s in SCENES {
         for leaf in [1, 2, 8] {
             let c = case(s, leaf, 2000, 7);
-            for name in ["bvh4", "bvh8"] {
-                let l = check(&c, &spec(name, &[]));
+            for (name, collapse) in [("bvh4", "sah"), ("bvh8", "sah"), ("bvh4", "greedy"), ("bvh8", "greedy")] {
+                let l = check(&c, &spec(name, &[("collapse", collapse)]));
                 let w = wide_of(&l);
                 check_timed(&c, w, &c.rays, &c.want, 8);
                 let m = l.memory();
@@ -209,4 +210,107 @@ fn timed_path_refuses_a_store_without_leaf_ends() {
     want.sort_unstable();
     assert_eq!(marked, want);
     w.hits(&TriStore::new(&w.prim_indices, &c.scene.triangles), &c.rays);
+}
+
+/// The cheapest collapse of the subtree below `n` as one child (leaf or wide node), by trying every
+/// way to cut each wide node's subtree into at most `width` children: the oracle of the programme.
+fn brute_best(bvh: &Bvh, n: usize, width: usize, w: CollapseCost) -> f64 {
+    let nd = &bvh.nodes[n];
+    let sa = nd.bounds.area();
+    let refs = |k: usize| -> u32 {
+        let mut todo = vec![k];
+        let mut r = 0;
+        while let Some(i) = todo.pop() {
+            let m = &bvh.nodes[i];
+            if m.is_leaf() {
+                r += m.count;
+            } else {
+                todo.extend([m.first as usize, m.first as usize + 1]);
+            }
+        }
+        r
+    };
+    let leaf = w.c_leaf as f64 * sa * refs(n).div_ceil(w.block).max(1) as f64;
+    if nd.is_leaf() {
+        return leaf;
+    }
+    // Every cut of the subtree below `k` into at most `max` roots.
+    fn cuts(bvh: &Bvh, k: usize, max: usize) -> Vec<Vec<usize>> {
+        let mut out = vec![vec![k]];
+        let m = &bvh.nodes[k];
+        if !m.is_leaf() && max >= 2 {
+            let (l, r) = (m.first as usize, m.first as usize + 1);
+            for a in cuts(bvh, l, max - 1) {
+                for b in cuts(bvh, r, max - a.len()) {
+                    out.push(a.iter().chain(&b).copied().collect());
+                }
+            }
+        }
+        out
+    }
+    let (l, r) = (nd.first as usize, nd.first as usize + 1);
+    let mut inner = f64::INFINITY;
+    for a in cuts(bvh, l, width - 1) {
+        for b in cuts(bvh, r, width - a.len()) {
+            let c: f64 = a.iter().chain(&b).map(|&k| brute_best(bvh, k, width, w)).sum();
+            inner = inner.min(c);
+        }
+    }
+    let inner = w.c_node as f64 * sa + inner;
+    if refs(n) <= w.max_leaf { leaf.min(inner) } else { inner }
+}
+
+#[test]
+fn optimal_collapse_is_optimal() {
+    let weights = [
+        CollapseCost { c_node: 1.0, c_leaf: 1.0, max_leaf: LEAF_BLOCK, block: 4 },
+        CollapseCost { c_node: 1.0, c_leaf: 0.25, max_leaf: 8, block: 4 },
+        CollapseCost { c_node: 3.0, c_leaf: 2.0, max_leaf: 4, block: 1 },
+    ];
+    // Small trees: the programme's cost equals the exhaustive search's.
+    for (s, n) in [("gen:sphere:n=24", 1), ("gen:terrain:n=40", 1), ("gen:degenerate:n=30", 2)] {
+        let c = case(s, n, 10, 1);
+        for width in [4, 8] {
+            for w in weights {
+                let want = if c.bvh.nodes[0].is_leaf() {
+                    w.c_leaf as f64 * c.bvh.nodes[0].bounds.area() * c.bvh.nodes[0].count.div_ceil(w.block) as f64
+                } else {
+                    brute_best(&c.bvh, 0, width, w)
+                } / c.bvh.nodes[0].bounds.area();
+                let got = optimal_cost(&c.bvh, width, w).unwrap();
+                assert!((got - want).abs() <= 1e-4 * want, "{s} width {width} {w:?}: programme {got}, exhaustive {want}");
+            }
+        }
+    }
+    // Larger trees: the tree built has the cost the programme promised, at most the greedy tree's;
+    // and the same tree at the edges of the f32 range (areas relative to the root's).
+    let edges = ["gen:scale:n=2000,s=1e-30", "gen:scale:n=2000,s=1e30", "gen:scale:n=2000"];
+    let mut trees = Vec::new();
+    for s in SCENES.iter().chain(&edges) {
+        let c = case(s, 2, 10, 1);
+        for width in [4, 8] {
+            let greedy = WideBvh::build_with(&c.bvh, width, Collapse::Greedy).unwrap();
+            for w in weights {
+                let opt = WideBvh::build_with(&c.bvh, width, Collapse::Optimal(w)).unwrap();
+                opt.validate(&c.scene.triangles).unwrap();
+                let (planned, built) = (optimal_cost(&c.bvh, width, w).unwrap(), opt.collapse_cost(w));
+                assert!((planned - built).abs() <= 1e-4 * built.max(1e-30), "{s} width {width} {w:?}: planned {planned}, built {built}");
+                if s.starts_with("gen:scale") && width == 8 && w == weights[0] {
+                    trees.push((s.to_string(), built, opt.nodes()));
+                }
+                let g = greedy.collapse_cost(w);
+                if w.max_leaf == LEAF_BLOCK {
+                    // Greedy's leaves are the same kind, so its tree is one the programme considered.
+                    assert!(built <= g * (1.0 + 1e-5), "{s} width {width} {w:?}: optimal {built} > greedy {g}");
+                }
+            }
+        }
+    }
+    // The scaled scenes' triangles round differently (1e-30 is not a power of two), so their trees
+    // may differ in near-ties; their quality may not.
+    let (_, base, base_nodes) = &trees[2];
+    for (s, cost, nodes) in &trees[..2] {
+        assert!((cost / base - 1.0).abs() < 1e-3, "{s}: collapse cost {cost}, {base} at scale 1");
+        assert!(nodes.abs_diff(*base_nodes) * 100 <= *base_nodes, "{s}: {nodes} nodes, {base_nodes} at scale 1");
+    }
 }
