@@ -250,22 +250,43 @@ impl TriTest for Watertight {
     fn test_leaf(r: &WoopRay, tris: &[WTri], best: &mut Hit) -> u32 {
         #[cfg(target_arch = "x86_64")]
         {
-            let mut n = 0;
-            let mut rest = tris;
-            while let Some(q) = rest.first_chunk::<4>() {
-                // SAFETY: SSE is in the x86-64 baseline.
-                let (lanes, end) = unsafe { watertight4(r, q, best) };
-                n += lanes;
-                if end {
-                    return n;
-                }
-                rest = &rest[4..];
+            // One instance per axis order of the ray (Woop et al. 2013: kz its largest direction
+            // component, kx and ky the others, swapped when that component is negative; all six
+            // orders occur): with the order a constant, the four-wide test picks its columns from
+            // registers instead of indexing an array of them through the stack (measured: the
+            // spills and a failed store-to-load forwarding were the leaf test's hottest spots).
+            match r.k {
+                [0, 1, 2] => leaf4::<0, 1, 2>(r, tris, best),
+                [1, 0, 2] => leaf4::<1, 0, 2>(r, tris, best),
+                [1, 2, 0] => leaf4::<1, 2, 0>(r, tris, best),
+                [2, 1, 0] => leaf4::<2, 1, 0>(r, tris, best),
+                [2, 0, 1] => leaf4::<2, 0, 1>(r, tris, best),
+                [0, 2, 1] => leaf4::<0, 2, 1>(r, tris, best),
+                _ => Exact::test_leaf_with(r, tris, best, intersect_watertight),
             }
-            n + Exact::test_leaf_with(r, rest, best, intersect_watertight)
         }
         #[cfg(not(target_arch = "x86_64"))]
         Exact::test_leaf_with(r, tris, best, intersect_watertight)
     }
+}
+
+/// [`Watertight::test_leaf`] for a ray whose axis order `r.k` is `[KX, KY, KZ]`.
+#[cfg(target_arch = "x86_64")]
+#[inline(never)]
+fn leaf4<const KX: usize, const KY: usize, const KZ: usize>(r: &WoopRay, tris: &[WTri], best: &mut Hit) -> u32 {
+    debug_assert_eq!(r.k, [KX, KY, KZ]);
+    let mut n = 0;
+    let mut rest = tris;
+    while let Some(q) = rest.first_chunk::<4>() {
+        // SAFETY: SSE is in the x86-64 baseline.
+        let (lanes, end) = unsafe { watertight4::<KX, KY, KZ>(r, q, best) };
+        n += lanes;
+        if end {
+            return n;
+        }
+        rest = &rest[4..];
+    }
+    n + Exact::test_leaf_with(r, rest, best, intersect_watertight)
 }
 
 impl Exact {
@@ -293,7 +314,11 @@ impl Exact {
 /// out of range) goes through the scalar test.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-unsafe fn watertight4(r: &WoopRay, q: &[WTri; 4], best: &mut Hit) -> (u32, bool) {
+unsafe fn watertight4<const KX: usize, const KY: usize, const KZ: usize>(
+    r: &WoopRay,
+    q: &[WTri; 4],
+    best: &mut Hit,
+) -> (u32, bool) {
     use std::arch::x86_64::*;
     unsafe {
         // Columns of four 4-float rows: rows[j] = floats o..o + 4 of triangle j.
@@ -312,7 +337,7 @@ unsafe fn watertight4(r: &WoopRay, q: &[WTri; 4], best: &mut Hit) -> (u32, bool)
         let ends = _mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(_mm_castps_si128(last), _mm_setzero_si128()))) ^ 0xf;
         let lanes = if ends == 0 { 4 } else { ends.trailing_zeros() + 1 };
         let v = [[x0, y0, z0], [x1, y1, z1], [x2, y2, z2]];
-        let [kx, ky, kz] = r.k;
+        let (kx, ky, kz) = (KX, KY, KZ);
         let set = _mm_set1_ps;
         let (ox, oy, oz) = (set(r.org[0]), set(r.org[1]), set(r.org[2]));
         let (sx, sy, sz) = (set(r.s[0]), set(r.s[1]), set(r.s[2]));
