@@ -71,7 +71,8 @@ bench-trace RUNS="3" *SCENES="":
         done
     fi
     echo "# uptime: $(uptime)"
-    cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --tools ../shared/tools $scenes
+    # AXES=all: the binary tree of tinybvh's BVH8_CPU (8 bins on all axes) instead of the thesis' binned SAH.
+    cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --tools ../shared/tools --axes "${AXES:-largest}" $scenes
 
 # issue 19.4: binned SAH (thesis and all-axes configurations) against tinybvh's BuildAVX, 1 thread, alternated.
 bench-binned RUNS="5" ROUNDS="3":

@@ -1,7 +1,9 @@
 //! Trace throughput of bvh2, bvh4 and bvh8 beside Embree and tinybvh, in one invocation (issue 19):
-//! `cargo run --release -p bvhlab-layout --example bench_trace -- [--runs N] [--rays N] [--tools DIR] SCENE...`
+//! `cargo run --release -p bvhlab-layout --example bench_trace -- [--runs N] [--rays N] [--tools DIR] [--axes all] SCENE...`
 //!
-//! Per scene: binned SAH (16 bins, leaf 2, c_T = 3, c_I = 2: `eval --build binned-sah`'s defaults),
+//! Per scene: binned SAH (16 bins, leaf 2, c_T = 3, c_I = 2: `eval --build binned-sah`'s defaults;
+//! `--axes all`: 8 bins on all three axes, `binned-sah:axes=all:bins=8`, the tree tinybvh's BVH8_CPU
+//! is built from: its BuildAVX),
 //! then bvhlab's timed paths (watertight f32 test, no counters) on 10^6 random rays of the anchors'
 //! kind: pairs of uniform points on the sphere around the scene box (radius half its diagonal, as
 //! `../shared/tools/*_anchor.cpp`), the ray starting at the first point towards the second with an
@@ -84,17 +86,19 @@ fn anchor(tool: &str, args: &[&str]) -> Option<String> {
 fn main() {
     let mut args = std::env::args().skip(1);
     let (mut runs, mut n_rays, mut tools) = (3usize, 1_000_000usize, "../shared/tools".to_string());
+    let mut all_axes = false;
     let mut scenes = Vec::new();
     while let Some(a) = args.next() {
         match a.as_str() {
             "--runs" => runs = args.next().and_then(|v| v.parse().ok()).expect("--runs N"),
             "--rays" => n_rays = args.next().and_then(|v| v.parse().ok()).expect("--rays N"),
             "--tools" => tools = args.next().expect("--tools DIR"),
+            "--axes" => all_axes = args.next().expect("--axes largest|all") == "all",
             _ => scenes.push(a),
         }
     }
     if scenes.is_empty() {
-        eprintln!("usage: bench_trace [--runs N] [--rays N] [--tools DIR] SCENE...");
+        eprintln!("usage: bench_trace [--runs N] [--rays N] [--tools DIR] [--axes largest|all] SCENE...");
         std::process::exit(2);
     }
     let avx2 = {
@@ -108,7 +112,8 @@ fn main() {
         }
     };
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    println!("# bench-trace: {n_rays} random rays, 1 thread unless said, median of {runs} runs; AVX2: {avx2}; loadavg at start: {}", load.trim());
+    let tree = if all_axes { "binned-sah:axes=all:bins=8" } else { "binned-sah (bins=16, largest axis)" };
+    println!("# bench-trace: {n_rays} random rays, 1 thread unless said, median of {runs} runs; tree: {tree}; AVX2: {avx2}; loadavg at start: {}", load.trim());
     println!(
         "{:<16} {:>8} {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>8} {:>7} | {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8}",
         "scene", "tris", "hit%", "hit%E", "hit%T", "bvh2", "bvh4", "bvh8", "bvh8x2T", "cwbvh", "embree", "E-same", "tinybvh",
@@ -128,7 +133,12 @@ fn main() {
             .unwrap_or_else(|| spec.clone());
         let tris = &scene.triangles;
         let (boxes, centers) = scene.boxes_and_centers();
-        let bvh = binned_sah::build(&boxes, &centers, 16, &TopDownConfig::default());
+        let opts = if all_axes {
+            binned_sah::BinnedOptions { bins: 8, axes: binned_sah::Axes::All, ..binned_sah::BinnedOptions::new(8) }
+        } else {
+            binned_sah::BinnedOptions::new(16)
+        };
+        let bvh = binned_sah::build_with_options(&boxes, &centers, &opts, &TopDownConfig::default());
         let b = scene.bounds();
         // The anchors' sphere: half the box diagonal; their rays have an infinite tfar.
         let radius = (0.5 * b.extent_f64().length()) as f32;
