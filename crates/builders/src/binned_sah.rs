@@ -3,8 +3,7 @@
 //! sweeps over the bins, the original SAH leaf-vs-split test (eq. 2 and 3), in-place partition,
 //! iteration with an explicit stack.
 use crate::primref::{
-    make_refs, make_refs_parallel, object_median, partition_known_bounds, partition_parallel,
-    PrimRef,
+    make_refs, make_refs_parallel, object_median, partition_known_bounds, partition_parallel, with_refs, Ref,
 };
 use crate::simd_box::BoxA;
 use crate::topdown::{build_nodes, build_nodes_parallel, Range};
@@ -139,7 +138,11 @@ pub fn build_with_options(
     opts: &BinnedOptions,
     cfg: &TopDownConfig,
 ) -> Bvh {
-    let (mut refs, root) = make_refs(boxes, centers);
+    with_refs!(boxes, centers, build_refs(boxes, centers, opts, cfg))
+}
+
+fn build_refs<R: Ref>(boxes: &[Aabb], centers: &[Vec3], opts: &BinnedOptions, cfg: &TopDownConfig) -> Bvh {
+    let (mut refs, root) = make_refs::<R>(boxes, centers);
     let mut binner = Binner::new(opts.bins.max(2) as usize);
     let s = scene_scale(&root);
     let nodes = build_nodes(refs.len(), root, |r| {
@@ -147,7 +150,7 @@ pub fn build_with_options(
     });
     Bvh {
         nodes,
-        prim_indices: refs.iter().map(|p| p.idx).collect(),
+        prim_indices: refs.iter().map(|p| p.idx()).collect(),
     }
 }
 
@@ -219,7 +222,7 @@ impl Bins3 {
     /// constant second, so a NaN centroid lands in bin 0 both ways; the legacy [`bin_of`] gives
     /// the same bins for every value).
     #[inline(always)]
-    fn bin_of_axis(&self, c: &Vec3, axis: usize) -> usize {
+    fn bin_of_axis(&self, c: &Vec3A, axis: usize) -> usize {
         let f = (((c[axis] * self.s[axis] - self.cb_min[axis]) * self.k0[axis]).max(0.0))
             .min(self.kmax);
         // SAFETY: `f` is in [0, k - 1] (max/min above removed NaN), so it fits a u32: one convert
@@ -265,7 +268,7 @@ impl Binner {
 
     /// Bins `prims` along all three axes in one pass (issue 19.4: one read of each primitive for
     /// the three axes instead of three passes).
-    fn bin3(&mut self, prims: &[PrimRef], b: &Bins3) {
+    fn bin3<R: Ref>(&mut self, prims: &[R], b: &Bins3) {
         let k = self.k;
         self.count.fill(0);
         self.bounds.fill(BoxA::EMPTY);
@@ -274,14 +277,14 @@ impl Binner {
         let (bx, rest) = self.bounds.split_at_mut(k);
         let (by, bz) = rest.split_at_mut(k);
         for p in prims {
-            let i = b.bins_of(Vec3A::from(p.c));
+            let i = b.bins_of(p.c());
             let (i0, i1, i2) = (i[0] as usize, i[1] as usize, i[2] as usize);
             cx[i0] += 1;
-            bx[i0].grow(p.min, p.max);
+            bx[i0].grow(p.min(), p.max());
             cy[i1] += 1;
-            by[i1].grow(p.min, p.max);
+            by[i1].grow(p.min(), p.max());
             cz[i2] += 1;
-            bz[i2].grow(p.min, p.max);
+            bz[i2].grow(p.min(), p.max());
         }
     }
 
@@ -319,14 +322,14 @@ impl Binner {
     }
 
     /// Bins `prims` along `axis` (eq. 6) into `self.count` / `self.bounds`.
-    fn bin(&mut self, prims: &[PrimRef], axis: usize, bins: &Bins) {
+    fn bin<R: Ref>(&mut self, prims: &[R], axis: usize, bins: &Bins) {
         let k = self.k;
         self.count[..k].fill(0);
         self.bounds[..k].fill(BoxA::EMPTY);
         for p in prims {
-            let b = bin_of(p.c[axis], bins, k);
+            let b = bin_of(p.c()[axis], bins, k);
             self.count[b] += 1;
-            self.bounds[b].grow(p.min, p.max);
+            self.bounds[b].grow(p.min(), p.max());
         }
     }
 
@@ -528,8 +531,8 @@ fn decide(best: Option<BinSplit>, r: &Range, axis: usize, cfg: &TopDownConfig, s
 }
 
 /// The split decision for one node: `None` makes a leaf.
-fn split(
-    refs: &mut [PrimRef],
+fn split<R: Ref>(
+    refs: &mut [R],
     r: &Range,
     binner: &mut Binner,
     cfg: &TopDownConfig,
@@ -565,7 +568,7 @@ fn split(
             // same boxes), so the loop gathers only the centroid bounds.
             let (lb, rb) = binner.child_boxes(0, last);
             let (left, right) =
-                partition_known_bounds(refs, r, lb, rb, |p| bin_of(p.c[axis], &bins, k) <= last);
+                partition_known_bounds(refs, r, lb, rb, |p| bin_of(p.c()[axis], &bins, k) <= last);
             debug_assert!(left.len() > 0 && right.len() > 0);
             Some((left, right))
         }
@@ -574,8 +577,8 @@ fn split(
 
 /// The partition of an [`Axes::All`] split: each primitive's bin on the split axis, by the same
 /// float expression as in [`Binner::bin3`].
-fn partition3(
-    refs: &mut [PrimRef],
+fn partition3<R: Ref>(
+    refs: &mut [R],
     r: &Range,
     bins: &Bins3,
     best: &BinSplit,
@@ -584,7 +587,7 @@ fn partition3(
     let (axis, last) = (best.axis, best.last_left_bin);
     let (lb, rb) = binner.child_boxes(axis, last);
     let (left, right) =
-        partition_known_bounds(refs, r, lb, rb, |p| bins.bin_of_axis(&p.c, axis) <= last);
+        partition_known_bounds(refs, r, lb, rb, |p| bins.bin_of_axis(&p.c(), axis) <= last);
     debug_assert!(left.len() > 0 && right.len() > 0);
     (left, right)
 }
@@ -674,17 +677,27 @@ pub fn build_parallel_options_tuned(
     cfg: &TopDownConfig,
     tuning: ParallelTuning,
 ) -> Bvh {
+    with_refs!(boxes, centers, build_parallel_refs(boxes, centers, opts, cfg, tuning))
+}
+
+fn build_parallel_refs<R: Ref>(
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    opts: &BinnedOptions,
+    cfg: &TopDownConfig,
+    tuning: ParallelTuning,
+) -> Bvh {
     use rayon::prelude::*;
-    let (mut refs, root) = make_refs_parallel(boxes, centers);
+    let (mut refs, root) = make_refs_parallel::<R>(boxes, centers);
     let k = opts.bins.max(2) as usize;
     let threads = rayon::current_num_threads();
     // From the whole scene (the vertical tasks see only their slice): the same bins as sequential.
     let s = scene_scale(&root);
     // Horizontal phase: a large node's binning and partition spread over the threads.
     let horizontal =
-        |refs: &mut [PrimRef], flags: &mut [bool], r: &Range| -> Option<(Range, Range)> {
+        |refs: &mut [R], flags: &mut [bool], r: &Range| -> Option<(Range, Range)> {
             let chunk = tuning.chunk(r.len(), threads);
-            let (best, axis, is_left): (_, _, Box<dyn Fn(&PrimRef, usize) -> bool + Sync>) =
+            let (best, axis, is_left): (_, _, Box<dyn Fn(&R, usize) -> bool + Sync>) =
                 match plan(r, k, cfg, opts, s) {
                     Plan::Leaf => return None,
                     Plan::Median(axis) => return Some(object_median(refs, r, axis)),
@@ -704,7 +717,7 @@ pub fn build_parallel_options_tuned(
                                 a
                             })?;
                         let best = binner.sweep(s);
-                        let f = move |p: &PrimRef, last: usize| bin_of(p.c[axis], &bins, k) <= last;
+                        let f = move |p: &R, last: usize| bin_of(p.c()[axis], &bins, k) <= last;
                         (best, axis, Box::new(f))
                     }
                     Plan::Bin3 { bins } => {
@@ -722,7 +735,7 @@ pub fn build_parallel_options_tuned(
                         let best = binner.sweep3(s, &bins);
                         let axis = best.map_or(r.cbounds.largest_axis(), |b| b.axis);
                         let f =
-                            move |p: &PrimRef, last: usize| bins.bin_of_axis(&p.c, axis) <= last;
+                            move |p: &R, last: usize| bins.bin_of_axis(&p.c(), axis) <= last;
                         (best, axis, Box::new(f))
                     }
                 };
@@ -739,13 +752,52 @@ pub fn build_parallel_options_tuned(
             }
         };
     // Vertical phase: each small subtree is the sequential builder on its own slice.
-    let vertical = |refs: &mut [PrimRef], r: &Range| -> Vec<Node> {
+    let vertical = |refs: &mut [R], r: &Range| -> Vec<Node> {
         let mut binner = Binner::new(k);
         build_nodes(r.len(), *r, |r| split(refs, r, &mut binner, cfg, opts, s))
     };
     let nodes = build_nodes_parallel(&mut refs, root, tuning.vertical_min, horizontal, vertical);
     Bvh {
         nodes,
-        prim_indices: refs.par_iter().map(|p| p.idx).collect(),
+        prim_indices: refs.par_iter().map(|p| p.idx()).collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::primref::{centres_are_box_centres, BoxRef, PrimRef};
+
+    /// The 32-byte references (centre recomputed from the box) and the 48-byte ones (centre
+    /// stored) give identical trees when the centres are the boxes' centres, sequential and
+    /// parallel, largest axis and all axes; other centres take the 48-byte path and are used.
+    #[test]
+    fn both_references_build_the_same_tree() {
+        let tiny = ParallelTuning { vertical_min: 64, min_chunk: 16 };
+        for spec in ["gen:sphere:n=3000", "gen:degenerate:n=2000", "gen:outlier:n=2000,e=20", "gen:scale:n=2000,s=1e30"] {
+            let (boxes, centers) = bvhlab_geom::load_scene(spec).unwrap().boxes_and_centers();
+            assert!(centres_are_box_centres(&boxes, &centers), "{spec}");
+            for opts in [BinnedOptions::new(16), BinnedOptions { bins: 8, axes: Axes::All, ..BinnedOptions::new(8) }] {
+                let cfg = TopDownConfig::default();
+                let a = build_refs::<BoxRef>(&boxes, &centers, &opts, &cfg);
+                let b = build_refs::<PrimRef>(&boxes, &centers, &opts, &cfg);
+                assert_eq!(a, b, "{spec} {opts:?}");
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+                let (pa, pb) = pool.install(|| {
+                    (
+                        build_parallel_refs::<BoxRef>(&boxes, &centers, &opts, &cfg, tiny),
+                        build_parallel_refs::<PrimRef>(&boxes, &centers, &opts, &cfg, tiny),
+                    )
+                });
+                assert_eq!(pa, a, "{spec} {opts:?} parallel");
+                assert_eq!(pb, a, "{spec} {opts:?} parallel");
+                // Centres at the boxes' minimum corners: not box centres, so the 48-byte path.
+                let corners: Vec<Vec3> = boxes.iter().map(|b| b.min).collect();
+                assert!(!centres_are_box_centres(&boxes, &corners) || boxes.iter().all(|b| b.min == b.max));
+                let c = build_with_options(&boxes, &corners, &opts, &cfg);
+                assert_eq!(c, build_refs::<PrimRef>(&boxes, &corners, &opts, &cfg), "{spec} {opts:?} corners");
+                bvhlab_bvh::validate(&c, &boxes).unwrap();
+            }
+        }
     }
 }

@@ -1,21 +1,131 @@
 //! Primitive references for the in-place builders (spatial median, binned SAH): box, centre and
-//! index in one 48-byte record, so binning and partitioning stream through memory sequentially
-//! instead of gathering boxes and centres by index.
+//! index in one record, so binning and partitioning stream through memory sequentially instead of
+//! gathering boxes and centres by index. When every centre is its box's centre (what the pipeline
+//! gives: `Scene::boxes_and_centers`) the record is the 32-byte [`BoxRef`], the centre recomputed
+//! from the box with the same f32 operations as `Aabb::center` (so the same bits, the same trees);
+//! otherwise the 48-byte [`PrimRef`] carries the given centre. The builders are generic over
+//! [`Ref`] and pick one per build ([`with_refs`]).
 use crate::simd_box::BoxA;
 use crate::topdown::Range;
 use bvhlab_bvh::{Aabb, Vec3};
 use glam::Vec3A;
 
+/// A primitive reference: box, centre and index.
+pub(crate) trait Ref: Copy + Send + Sync + std::fmt::Debug {
+    fn new(b: &Aabb, c: Vec3, idx: u32) -> Self;
+    fn min(&self) -> Vec3A;
+    fn max(&self) -> Vec3A;
+    fn c(&self) -> Vec3A;
+    fn idx(&self) -> u32;
+}
+
+/// 32 bytes: box and index; the centre is the box's (see the module doc).
+#[derive(Clone, Copy, Debug)]
+#[repr(C)]
+pub(crate) struct BoxRef {
+    /// x, y, z: the box's minimum; w: the primitive index's bits.
+    lo: glam::Vec4,
+    /// x, y, z: the box's maximum; w: 0.
+    hi: glam::Vec4,
+}
+
+impl Ref for BoxRef {
+    #[inline(always)]
+    fn new(b: &Aabb, _: Vec3, idx: u32) -> Self {
+        BoxRef { lo: b.min.extend(f32::from_bits(idx)), hi: b.max.extend(0.0) }
+    }
+    #[inline(always)]
+    fn min(&self) -> Vec3A {
+        xyz(self.lo)
+    }
+    #[inline(always)]
+    fn max(&self) -> Vec3A {
+        xyz(self.hi)
+    }
+    /// The box centre, computed as `Aabb::center` does (same f32 operations, so the same bits).
+    #[inline(always)]
+    fn c(&self) -> Vec3A {
+        self.min() * 0.5 + self.max() * 0.5
+    }
+    #[inline(always)]
+    fn idx(&self) -> u32 {
+        self.lo.w.to_bits()
+    }
+}
+
+/// 48 bytes: box, any centre and index.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct PrimRef {
-    pub min: Vec3A,
-    pub max: Vec3A,
-    pub c: Vec3,
-    pub idx: u32,
+    min: Vec3A,
+    max: Vec3A,
+    c: Vec3,
+    idx: u32,
+}
+
+impl Ref for PrimRef {
+    #[inline(always)]
+    fn new(b: &Aabb, c: Vec3, idx: u32) -> Self {
+        PrimRef { min: b.min.into(), max: b.max.into(), c, idx }
+    }
+    #[inline(always)]
+    fn min(&self) -> Vec3A {
+        self.min
+    }
+    #[inline(always)]
+    fn max(&self) -> Vec3A {
+        self.max
+    }
+    #[inline(always)]
+    fn c(&self) -> Vec3A {
+        self.c.into()
+    }
+    #[inline(always)]
+    fn idx(&self) -> u32 {
+        self.idx
+    }
+}
+
+/// Whether every centre is bit for bit its box's centre (`Aabb::center`), so [`BoxRef`] serves.
+pub(crate) fn centres_are_box_centres(boxes: &[Aabb], centers: &[Vec3]) -> bool {
+    use rayon::prelude::*;
+    let same = |b: &Aabb, c: &Vec3| b.center().to_array().map(f32::to_bits) == c.to_array().map(f32::to_bits);
+    boxes.len() == centers.len() && boxes.par_iter().zip(centers.par_iter()).with_min_len(1 << 14).all(|(b, c)| same(b, c))
+}
+
+/// Runs a builder generic over [`Ref`] with the smallest reference that holds the input.
+macro_rules! with_refs {
+    ($boxes:expr, $centers:expr, $f:ident($($arg:expr),*)) => {
+        if $crate::primref::centres_are_box_centres($boxes, $centers) {
+            $f::<$crate::primref::BoxRef>($($arg),*)
+        } else {
+            $f::<$crate::primref::PrimRef>($($arg),*)
+        }
+    };
+}
+pub(crate) use with_refs;
+
+/// The x, y, z lanes of `v` with w cleared (w holds an index's bits: kept out of arithmetic, where
+/// it would be a denormal or NaN).
+#[inline(always)]
+fn xyz(v: glam::Vec4) -> Vec3A {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{__m128, _mm_and_ps, _mm_castsi128_ps, _mm_set_epi32};
+        // SAFETY: SSE2 is part of x86_64.
+        #[allow(unused_unsafe)]
+        unsafe {
+            let m = _mm_castsi128_ps(_mm_set_epi32(0, -1, -1, -1));
+            Vec3A::from(_mm_and_ps(__m128::from(v), m))
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        Vec3A::new(v.x, v.y, v.z)
+    }
 }
 
 /// References in input order plus the root range (bounds of all boxes, bounds of all centres).
-pub(crate) fn make_refs(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimRef>, Range) {
+pub(crate) fn make_refs<R: Ref>(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<R>, Range) {
     assert_eq!(
         boxes.len(),
         centers.len(),
@@ -29,13 +139,8 @@ pub(crate) fn make_refs(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimRef>, Rang
         .zip(centers)
         .enumerate()
         .map(|(i, (b, &c))| {
-            let r = PrimRef {
-                min: b.min.into(),
-                max: b.max.into(),
-                c,
-                idx: i as u32,
-            };
-            bounds.grow(r.min, r.max);
+            let r = R::new(b, c, i as u32);
+            bounds.grow(r.min(), r.max());
             cbounds.grow_point(c.into());
             r
         })
@@ -47,10 +152,10 @@ pub(crate) fn make_refs(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimRef>, Rang
 /// with `is_left` first. Every element is classified exactly once, and the children's bounds and
 /// centroid bounds are gathered on the way. Returns the two child ranges; either may be empty.
 #[inline]
-pub(crate) fn partition(
-    refs: &mut [PrimRef],
+pub(crate) fn partition<R: Ref>(
+    refs: &mut [R],
     r: &Range,
-    is_left: impl Fn(&PrimRef) -> bool,
+    is_left: impl Fn(&R) -> bool,
 ) -> (Range, Range) {
     let s = &mut refs[r.begin..r.end];
     let (mut lb, mut lcb, mut rb, mut rcb) = (BoxA::EMPTY, BoxA::EMPTY, BoxA::EMPTY, BoxA::EMPTY);
@@ -58,13 +163,13 @@ pub(crate) fn partition(
     let mut j = s.len();
     loop {
         while i < j && is_left(&s[i]) {
-            lb.grow(s[i].min, s[i].max);
-            lcb.grow_point(s[i].c.into());
+            lb.grow(s[i].min(), s[i].max());
+            lcb.grow_point(s[i].c());
             i += 1;
         }
         while i < j && !is_left(&s[j - 1]) {
-            rb.grow(s[j - 1].min, s[j - 1].max);
-            rcb.grow_point(s[j - 1].c.into());
+            rb.grow(s[j - 1].min(), s[j - 1].max());
+            rcb.grow_point(s[j - 1].c());
             j -= 1;
         }
         if i >= j {
@@ -72,10 +177,10 @@ pub(crate) fn partition(
         }
         // s[i] belongs right, s[j-1] left: swap them into place.
         s.swap(i, j - 1);
-        lb.grow(s[i].min, s[i].max);
-        lcb.grow_point(s[i].c.into());
-        rb.grow(s[j - 1].min, s[j - 1].max);
-        rcb.grow_point(s[j - 1].c.into());
+        lb.grow(s[i].min(), s[i].max());
+        lcb.grow_point(s[i].c());
+        rb.grow(s[j - 1].min(), s[j - 1].max());
+        rcb.grow_point(s[j - 1].c());
         i += 1;
         j -= 1;
     }
@@ -87,12 +192,12 @@ pub(crate) fn partition(
 /// bins, exactly: unions of the same boxes): gathers only the centroid bounds, half the min/max
 /// work of the loop. `lb` / `rb` are the left and right boxes.
 #[inline]
-pub(crate) fn partition_known_bounds(
-    refs: &mut [PrimRef],
+pub(crate) fn partition_known_bounds<R: Ref>(
+    refs: &mut [R],
     r: &Range,
     lb: BoxA,
     rb: BoxA,
-    is_left: impl Fn(&PrimRef) -> bool,
+    is_left: impl Fn(&R) -> bool,
 ) -> (Range, Range) {
     let s = &mut refs[r.begin..r.end];
     let (mut lcb, mut rcb) = (BoxA::EMPTY, BoxA::EMPTY);
@@ -100,19 +205,19 @@ pub(crate) fn partition_known_bounds(
     let mut j = s.len();
     loop {
         while i < j && is_left(&s[i]) {
-            lcb.grow_point(s[i].c.into());
+            lcb.grow_point(s[i].c());
             i += 1;
         }
         while i < j && !is_left(&s[j - 1]) {
-            rcb.grow_point(s[j - 1].c.into());
+            rcb.grow_point(s[j - 1].c());
             j -= 1;
         }
         if i >= j {
             break;
         }
         s.swap(i, j - 1);
-        lcb.grow_point(s[i].c.into());
-        rcb.grow_point(s[j - 1].c.into());
+        lcb.grow_point(s[i].c());
+        rcb.grow_point(s[j - 1].c());
         i += 1;
         j -= 1;
     }
@@ -136,18 +241,18 @@ pub(crate) fn partition_known_bounds(
 /// Object-median split on `axis`: the lower half by (centre, index) goes left. The index tie-break
 /// makes it deterministic and it always separates a range of >= 2 primitives, even when all centres
 /// coincide, so it is the builders' fallback that guarantees termination.
-pub(crate) fn object_median(refs: &mut [PrimRef], r: &Range, axis: usize) -> (Range, Range) {
+pub(crate) fn object_median<R: Ref>(refs: &mut [R], r: &Range, axis: usize) -> (Range, Range) {
     let s = &mut refs[r.begin..r.end];
     debug_assert!(s.len() >= 2);
     let m = s.len() / 2;
     s.select_nth_unstable_by(m, |a, b| {
-        a.c[axis].total_cmp(&b.c[axis]).then(a.idx.cmp(&b.idx))
+        a.c()[axis].total_cmp(&b.c()[axis]).then(a.idx().cmp(&b.idx()))
     });
-    let bounds = |part: &[PrimRef]| {
+    let bounds = |part: &[R]| {
         let (mut b, mut cb) = (BoxA::EMPTY, BoxA::EMPTY);
         for p in part {
-            b.grow(p.min, p.max);
-            cb.grow_point(p.c.into());
+            b.grow(p.min(), p.max());
+            cb.grow_point(p.c());
         }
         (b, cb)
     };
@@ -159,18 +264,18 @@ pub(crate) fn object_median(refs: &mut [PrimRef], r: &Range, axis: usize) -> (Ra
 
 /// Bounds and centroid bounds of a slice of references.
 #[inline]
-fn bounds_of(part: &[PrimRef]) -> (BoxA, BoxA) {
+fn bounds_of<R: Ref>(part: &[R]) -> (BoxA, BoxA) {
     let (mut b, mut cb) = (BoxA::EMPTY, BoxA::EMPTY);
     for p in part {
-        b.grow(p.min, p.max);
-        cb.grow_point(p.c.into());
+        b.grow(p.min(), p.max());
+        cb.grow_point(p.c());
     }
     (b, cb)
 }
 
 /// [`make_refs`] on all threads; the same references and the same root bounds (min/max merge
 /// exactly in any order).
-pub(crate) fn make_refs_parallel(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimRef>, Range) {
+pub(crate) fn make_refs_parallel<R: Ref>(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<R>, Range) {
     use rayon::prelude::*;
     assert_eq!(
         boxes.len(),
@@ -178,16 +283,11 @@ pub(crate) fn make_refs_parallel(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimR
         "builders need one centre per primitive box"
     );
     assert!(boxes.len() < u32::MAX as usize, "primitive indices are u32");
-    let refs: Vec<PrimRef> = boxes
+    let refs: Vec<R> = boxes
         .par_iter()
         .zip(centers.par_iter())
         .enumerate()
-        .map(|(i, (b, &c))| PrimRef {
-            min: b.min.into(),
-            max: b.max.into(),
-            c,
-            idx: i as u32,
-        })
+        .map(|(i, (b, &c))| R::new(b, c, i as u32))
         .collect();
     let (bounds, cbounds) = refs.par_chunks(1 << 14).map(bounds_of).reduce(
         || (BoxA::EMPTY, BoxA::EMPTY),
@@ -209,12 +309,12 @@ pub(crate) fn make_refs_parallel(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<PrimR
 /// (The thesis describes a stable variant with a double-length array; reproducing the sequential
 /// builder's permutation instead keeps its trees and SAH costs unchanged and moves only the M
 /// misplaced pairs.) `flags` is scratch of the range's length; `chunk` only affects speed.
-pub(crate) fn partition_parallel(
-    refs: &mut [PrimRef],
+pub(crate) fn partition_parallel<R: Ref>(
+    refs: &mut [R],
     r: &Range,
     flags: &mut [bool],
     chunk: usize,
-    is_left: impl Fn(&PrimRef) -> bool + Sync,
+    is_left: impl Fn(&R) -> bool + Sync,
 ) -> (Range, Range) {
     use rayon::prelude::*;
     let chunk = chunk.max(1);
@@ -232,11 +332,11 @@ pub(crate) fn partition_parallel(
                 *f = is_left(p);
                 if *f {
                     a.0 += 1;
-                    a.1.grow(p.min, p.max);
-                    a.2.grow_point(p.c.into());
+                    a.1.grow(p.min(), p.max());
+                    a.2.grow_point(p.c());
                 } else {
-                    a.3.grow(p.min, p.max);
-                    a.4.grow_point(p.c.into());
+                    a.3.grow(p.min(), p.max());
+                    a.4.grow_point(p.c());
                 }
             }
             a
@@ -263,7 +363,7 @@ pub(crate) fn partition_parallel(
 /// `[M - o - c, M - o)` from `mid` on, which occupy one contiguous stretch of positions. These
 /// stretches tile the right part in reverse chunk order, so both sides split into disjoint slices
 /// and every chunk swaps its pairs independently (no scratch copies, no unsafe).
-fn swap_misplaced(s: &mut [PrimRef], flags: &[bool], mid: usize, chunk: usize) {
+fn swap_misplaced<R: Ref>(s: &mut [R], flags: &[bool], mid: usize, chunk: usize) {
     use rayon::prelude::*;
     let (lp, rp) = s.split_at_mut(mid);
     let (lf, rf) = flags.split_at(mid);
@@ -314,7 +414,7 @@ fn swap_misplaced(s: &mut [PrimRef], flags: &[bool], mid: usize, chunk: usize) {
         .map(|(&o, &c)| position(m - o - c))
         .collect();
     // Carve the right part from its end: chunk 0 owns the highest ranks.
-    let mut rights: Vec<(&mut [PrimRef], &[bool])> = Vec::with_capacity(starts.len());
+    let mut rights: Vec<(&mut [R], &[bool])> = Vec::with_capacity(starts.len());
     let mut rest = rp;
     for &st in &starts {
         let (head, tail) = std::mem::take(&mut rest).split_at_mut(st);

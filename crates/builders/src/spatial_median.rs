@@ -10,7 +10,7 @@
 //! In both frames, if the middle leaves one side empty (all centroids equal, adjacent floats, or
 //! with `Node` every centroid on one side of the box middle), the node is split at the object
 //! median along the same axis, so construction always terminates.
-use crate::primref::{make_refs, object_median, partition, PrimRef};
+use crate::primref::{make_refs, object_median, partition, with_refs, Ref};
 use crate::topdown::{build_nodes, Range};
 use crate::{TopDownConfig, LEAF};
 use bvhlab_bvh::{Aabb, Bvh, Vec3};
@@ -75,17 +75,21 @@ pub fn build(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> Bvh {
 
 /// The spatial median splitting the middle of `frame`'s box.
 pub fn build_in(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig, frame: Frame) -> Bvh {
-    let (mut refs, root) = make_refs(boxes, centers);
+    with_refs!(boxes, centers, build_refs(boxes, centers, cfg, frame))
+}
+
+fn build_refs<R: Ref>(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig, frame: Frame) -> Bvh {
+    let (mut refs, root) = make_refs::<R>(boxes, centers);
     let max_leaf = cfg.max_leaf();
     let nodes = build_nodes(refs.len(), root, |r| split(&mut refs, r, max_leaf, frame));
     Bvh {
         nodes,
-        prim_indices: refs.iter().map(|p| p.idx).collect(),
+        prim_indices: refs.iter().map(|p| p.idx()).collect(),
     }
 }
 
 /// The split decision for one node: `None` makes a leaf (primitive threshold only, no SAH test).
-fn split(refs: &mut [PrimRef], r: &Range, max_leaf: usize, frame: Frame) -> Option<(Range, Range)> {
+fn split<R: Ref>(refs: &mut [R], r: &Range, max_leaf: usize, frame: Frame) -> Option<(Range, Range)> {
     if r.len() <= max_leaf {
         return None;
     }
@@ -97,7 +101,7 @@ fn split(refs: &mut [PrimRef], r: &Range, max_leaf: usize, frame: Frame) -> Opti
     let (lo, hi) = (b.min[axis], b.max[axis]);
     // Halves first: the same float as 0.5 (lo + hi) but no overflow near f32::MAX.
     let mid = 0.5 * lo + 0.5 * hi;
-    let (left, right) = partition(refs, r, |p| p.c[axis] < mid);
+    let (left, right) = partition(refs, r, |p| p.c()[axis] < mid);
     if left.len() == 0 || right.len() == 0 {
         return Some(object_median(refs, r, axis));
     }

@@ -1,7 +1,7 @@
 //! The iterative top-down driver shared by the builders (thesis 3.1.1: iteration with an explicit
 //! stack instead of recursion). It owns the node array; the split decision is a separate function.
 use crate::simd_box::BoxA;
-use crate::primref::PrimRef;
+use crate::primref::Ref;
 use bvhlab_bvh::Node;
 
 /// A node's primitive range `[begin, end)` with its bounds and its centroid bounds.
@@ -142,16 +142,16 @@ impl Piece {
 /// `vertical` returns the subtree's nodes with leaf `first` relative to its slice.
 /// Recursion: one level per level of large nodes, at most about `2 log2 n`; deeper large nodes
 /// (a degenerate, unbalanced top) fall back to an explicit stack, see [`horizontal_iterative`].
-pub(crate) fn build_nodes_parallel<H, V>(
-    refs: &mut [PrimRef],
+pub(crate) fn build_nodes_parallel<R: Ref, H, V>(
+    refs: &mut [R],
     root: Range,
     vertical_min: usize,
     horizontal: H,
     vertical: V,
 ) -> Vec<Node>
 where
-    H: Fn(&mut [PrimRef], &mut [bool], &Range) -> Option<(Range, Range)> + Sync,
-    V: Fn(&mut [PrimRef], &Range) -> Vec<Node> + Sync,
+    H: Fn(&mut [R], &mut [bool], &Range) -> Option<(Range, Range)> + Sync,
+    V: Fn(&mut [R], &Range) -> Vec<Node> + Sync,
 {
     use rayon::prelude::*;
     if refs.is_empty() {
@@ -165,6 +165,7 @@ where
         max_depth,
         horizontal: &horizontal,
         vertical: &vertical,
+        refs: std::marker::PhantomData,
     };
     let piece = drv.subtree(refs, &mut flags, root, 0, 0);
     let Piece { skel, tasks } = piece;
@@ -246,11 +247,12 @@ where
 }
 
 /// The closures and limits of one [`build_nodes_parallel`] run.
-struct Driver<'a, H, V> {
+struct Driver<'a, R, H, V> {
     vertical_min: usize,
     max_depth: usize,
     horizontal: &'a H,
     vertical: &'a V,
+    refs: std::marker::PhantomData<fn(&mut [R])>,
 }
 
 /// Rebases a range by `-by` (child ranges into their own slice's frame).
@@ -262,15 +264,15 @@ fn shift(r: Range, by: usize) -> Range {
     }
 }
 
-impl<H, V> Driver<'_, H, V>
+impl<R: Ref, H, V> Driver<'_, R, H, V>
 where
-    H: Fn(&mut [PrimRef], &mut [bool], &Range) -> Option<(Range, Range)> + Sync,
-    V: Fn(&mut [PrimRef], &Range) -> Vec<Node> + Sync,
+    H: Fn(&mut [R], &mut [bool], &Range) -> Option<(Range, Range)> + Sync,
+    V: Fn(&mut [R], &Range) -> Vec<Node> + Sync,
 {
     /// The subtree of `r` (rebased to `refs`, whose first primitive is `offset` globally).
     fn subtree(
         &self,
-        refs: &mut [PrimRef],
+        refs: &mut [R],
         flags: &mut [bool],
         r: Range,
         offset: usize,
@@ -324,7 +326,7 @@ where
     /// stack (one node at a time, each split by all threads), then the vertical tasks in parallel.
     fn horizontal_iterative(
         &self,
-        refs: &mut [PrimRef],
+        refs: &mut [R],
         flags: &mut [bool],
         root: Range,
         offset: usize,
@@ -363,7 +365,7 @@ where
         }
         // Left subtrees are expanded first, so tasks come in increasing `begin` order and their
         // ranges are disjoint: carve `refs` into one slice per task.
-        let mut jobs: Vec<(&mut [PrimRef], Range, usize)> = Vec::with_capacity(tasks.len());
+        let mut jobs: Vec<(&mut [R], Range, usize)> = Vec::with_capacity(tasks.len());
         let mut rest = refs;
         let mut pos = 0;
         for t in &tasks {
