@@ -138,7 +138,7 @@ pub fn build_with_options(
     opts: &BinnedOptions,
     cfg: &TopDownConfig,
 ) -> Bvh {
-    with_refs!(boxes, centers, build_refs(boxes, centers, opts, cfg))
+    with_refs!(boxes, centers, false, build_refs(boxes, centers, opts, cfg))
 }
 
 fn build_refs<R: Ref>(boxes: &[Aabb], centers: &[Vec3], opts: &BinnedOptions, cfg: &TopDownConfig) -> Bvh {
@@ -677,7 +677,7 @@ pub fn build_parallel_options_tuned(
     cfg: &TopDownConfig,
     tuning: ParallelTuning,
 ) -> Bvh {
-    with_refs!(boxes, centers, build_parallel_refs(boxes, centers, opts, cfg, tuning))
+    with_refs!(boxes, centers, true, build_parallel_refs(boxes, centers, opts, cfg, tuning))
 }
 
 fn build_parallel_refs<R: Ref>(
@@ -776,7 +776,14 @@ mod tests {
         let tiny = ParallelTuning { vertical_min: 64, min_chunk: 16 };
         for spec in ["gen:sphere:n=3000", "gen:degenerate:n=2000", "gen:outlier:n=2000,e=20", "gen:scale:n=2000,s=1e30"] {
             let (boxes, centers) = bvhlab_geom::load_scene(spec).unwrap().boxes_and_centers();
-            assert!(centres_are_box_centres(&boxes, &centers), "{spec}");
+            assert!(centres_are_box_centres(&boxes, &centers, false), "{spec}");
+            assert!(centres_are_box_centres(&boxes, &centers, true), "{spec}");
+            for frame in [crate::spatial_median::Frame::Centroids, crate::spatial_median::Frame::Node] {
+                let cfg = TopDownConfig::default();
+                let a = crate::spatial_median::build_refs::<BoxRef>(&boxes, &centers, &cfg, frame);
+                let b = crate::spatial_median::build_refs::<PrimRef>(&boxes, &centers, &cfg, frame);
+                assert_eq!(a, b, "{spec} spatial median {frame:?}");
+            }
             for opts in [BinnedOptions::new(16), BinnedOptions { bins: 8, axes: Axes::All, ..BinnedOptions::new(8) }] {
                 let cfg = TopDownConfig::default();
                 let a = build_refs::<BoxRef>(&boxes, &centers, &opts, &cfg);
@@ -793,7 +800,7 @@ mod tests {
                 assert_eq!(pb, a, "{spec} {opts:?} parallel");
                 // Centres at the boxes' minimum corners: not box centres, so the 48-byte path.
                 let corners: Vec<Vec3> = boxes.iter().map(|b| b.min).collect();
-                assert!(!centres_are_box_centres(&boxes, &corners) || boxes.iter().all(|b| b.min == b.max));
+                assert!(!centres_are_box_centres(&boxes, &corners, false) || boxes.iter().all(|b| b.min == b.max));
                 let c = build_with_options(&boxes, &corners, &opts, &cfg);
                 assert_eq!(c, build_refs::<PrimRef>(&boxes, &corners, &opts, &cfg), "{spec} {opts:?} corners");
                 bvhlab_bvh::validate(&c, &boxes).unwrap();

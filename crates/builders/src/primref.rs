@@ -86,16 +86,24 @@ impl Ref for PrimRef {
 }
 
 /// Whether every centre is bit for bit its box's centre (`Aabb::center`), so [`BoxRef`] serves.
-pub(crate) fn centres_are_box_centres(boxes: &[Aabb], centers: &[Vec3]) -> bool {
+/// `parallel`: checked on the thread pool (the parallel builders); else on the calling thread, so
+/// a single-thread build stays on one thread.
+pub(crate) fn centres_are_box_centres(boxes: &[Aabb], centers: &[Vec3], parallel: bool) -> bool {
     use rayon::prelude::*;
-    let same = |b: &Aabb, c: &Vec3| b.center().to_array().map(f32::to_bits) == c.to_array().map(f32::to_bits);
-    boxes.len() == centers.len() && boxes.par_iter().zip(centers.par_iter()).with_min_len(1 << 14).all(|(b, c)| same(b, c))
+    let same = |(b, c): (&Aabb, &Vec3)| b.center().to_array().map(f32::to_bits) == c.to_array().map(f32::to_bits);
+    boxes.len() == centers.len()
+        && if parallel {
+            boxes.par_iter().zip(centers.par_iter()).with_min_len(1 << 14).all(same)
+        } else {
+            boxes.iter().zip(centers).all(same)
+        }
 }
 
-/// Runs a builder generic over [`Ref`] with the smallest reference that holds the input.
+/// Runs a builder generic over [`Ref`] with the smallest reference that holds the input
+/// (`parallel`: see [`centres_are_box_centres`]).
 macro_rules! with_refs {
-    ($boxes:expr, $centers:expr, $f:ident($($arg:expr),*)) => {
-        if $crate::primref::centres_are_box_centres($boxes, $centers) {
+    ($boxes:expr, $centers:expr, $parallel:expr, $f:ident($($arg:expr),*)) => {
+        if $crate::primref::centres_are_box_centres($boxes, $centers, $parallel) {
             $f::<$crate::primref::BoxRef>($($arg),*)
         } else {
             $f::<$crate::primref::PrimRef>($($arg),*)

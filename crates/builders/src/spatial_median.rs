@@ -75,10 +75,10 @@ pub fn build(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig) -> Bvh {
 
 /// The spatial median splitting the middle of `frame`'s box.
 pub fn build_in(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig, frame: Frame) -> Bvh {
-    with_refs!(boxes, centers, build_refs(boxes, centers, cfg, frame))
+    with_refs!(boxes, centers, false, build_refs(boxes, centers, cfg, frame))
 }
 
-fn build_refs<R: Ref>(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig, frame: Frame) -> Bvh {
+pub(crate) fn build_refs<R: Ref>(boxes: &[Aabb], centers: &[Vec3], cfg: &TopDownConfig, frame: Frame) -> Bvh {
     let (mut refs, root) = make_refs::<R>(boxes, centers);
     let max_leaf = cfg.max_leaf();
     let nodes = build_nodes(refs.len(), root, |r| split(&mut refs, r, max_leaf, frame));

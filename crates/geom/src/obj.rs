@@ -209,16 +209,24 @@ fn produce<R: Read>(mut reader: R, tx: SyncSender<Vec<u8>>) -> Result<ScanResult
                 return Err((Some(line), "invalid UTF-8 (binary data?)".into()));
             }
         };
+        // tobj resolves an object's face indices when the object ends: a new object may start
+        // here only if no face before refers to a vertex (texture coordinate, normal) not yet
+        // defined (absolute indices may point forward; `forward_references_resolve_against_the_
+        // whole_file`).
+        let cut = scanner.resolved();
         scanner.feed(chunk).map_err(|(l, r)| (Some(l), r))?;
         if let Some(t) = &tx {
             // Once a line needing a rewrite was seen (it may be in this block), every block goes
             // through the line-by-line filter; before, none needed it.
-            // Each block starts a new object for tobj: it holds an object's faces (about 80 bytes
-            // each) until the object ends, which for a one-object file was the whole file (70 MB
-            // of the dragon's 130 MB loading peak); per block they are at most a few MB. The
-            // triangles and their order are unchanged (faces index the global vertex list).
+            // Each block starts a new object for tobj (when `cut`): it holds an object's faces
+            // (about 80 bytes each) until the object ends, which for a one-object file was the
+            // whole file (70 MB of the dragon's 130 MB loading peak); per block they are at most a
+            // few MB. The triangles and their order are unchanged (faces index the global vertex
+            // list).
             let mut out = Vec::with_capacity(PART.len() + block.len());
-            out.extend_from_slice(PART);
+            if cut {
+                out.extend_from_slice(PART);
+            }
             if scanner.needs_filter {
                 out.extend_from_slice(filter(chunk).as_bytes());
             } else {
@@ -422,6 +430,11 @@ impl Scanner {
     }
 
     /// Check forward references against the final totals (the first line with one out of range).
+    /// Whether every index read so far refers to an element already defined.
+    fn resolved(&self) -> bool {
+        self.max_ref.iter().zip(self.counts).all(|(&r, c)| r <= c as u64)
+    }
+
     fn finish(&self) -> Result<ScanResult, (usize, String)> {
         for (kind, &total) in self.counts.iter().enumerate() {
             if self.max_ref[kind] > total as u64 {

@@ -372,3 +372,20 @@ fn multi_block_files_filter_late_lines_and_report_late_errors() {
     assert_eq!(line, Some(lines + 1), "{reason}");
     assert!(reason.contains("out of range"), "{reason}");
 }
+
+#[test]
+fn forward_references_across_blocks_load_in_order() {
+    // Faces first (well over one 1 MiB block), then their vertices, then more faces and vertices:
+    // the loader hands tobj block after block and may end tobj's object only where no face
+    // refers ahead; the triangles are the ones of the same faces after their vertices.
+    let n: usize = 200_000;
+    let faces: String = (1..n - 2).step_by(3).map(|i| format!("f {} {} {}\n", i, i + 1, i + 2)).collect();
+    let verts: String = (0..n).map(|i| format!("v {} {} {}\n", i % 97, (i / 97) % 89, i / 8633)).collect();
+    let more_faces: String = (n + 1..2 * n - 2).step_by(3).map(|i| format!("f {} {} {}\n", i, i + 1, i + 2)).collect();
+    let ahead = format!("{faces}{verts}{more_faces}{verts}");
+    let behind = format!("{verts}{faces}{verts}{more_faces}");
+    assert!(faces.len() > 1 << 20 && more_faces.len() > 1 << 20);
+    let (a, b) = (load_str(&ahead).unwrap(), load_str(&behind).unwrap());
+    assert_eq!(a.triangles.len(), 2 * (n - 3).div_ceil(3));
+    assert_eq!(a.triangles, b.triangles);
+}

@@ -93,7 +93,13 @@ fn main() {
             "--runs" => runs = args.next().and_then(|v| v.parse().ok()).expect("--runs N"),
             "--rays" => n_rays = args.next().and_then(|v| v.parse().ok()).expect("--rays N"),
             "--tools" => tools = args.next().expect("--tools DIR"),
-            "--axes" => all_axes = args.next().expect("--axes largest|all") == "all",
+            "--axes" => {
+                all_axes = match args.next().as_deref() {
+                    Some("all") => true,
+                    Some("largest") => false,
+                    other => panic!("--axes largest|all, got {other:?}"),
+                }
+            }
             _ => scenes.push(a),
         }
     }

@@ -29,7 +29,7 @@ fn main() {
     let variants: Vec<(String, Collapse)> = std::iter::once(("greedy".to_string(), Collapse::Greedy))
         .chain(spec.split(',').map(|v| {
             let f: Vec<f32> = v.split('/').map(|x| x.parse().expect("number")).collect();
-            let c = CollapseCost { c_node: f[0], c_leaf: f[1], max_leaf: f[2] as u32, block: f[3] as u32 };
+            let c = CollapseCost { c_node: f[0], c_leaf: f[1], max_leaf: f[2] as u32, block: (f[3] as u32).max(1) };
             (format!("opt{v}"), Collapse::Optimal(c))
         }))
         .collect();

@@ -10,8 +10,8 @@
 //! 2008 ("Getting rid of packets", section 3.1; also Dammertz et al. 2008): a wide node starts with
 //! the binary node's two children and repeatedly replaces the inner child of largest surface area
 //! by its two children until it has `width` children or only leaves. Measured on the four
-//! reference scenes (docs/decisions.md), the optimal collapse has 3-10 % lower wide SAH cost and
-//! traces 0-13 % faster. Leaves: a binary subtree with at most [`LEAF_BLOCK`] (4) triangle
+//! reference scenes (docs/decisions.md), the optimal collapse has 4-10 % lower wide SAH cost and
+//! traces 0-11 % faster (bvh8; bvh4 1-11 %). Leaves: a binary subtree with at most [`LEAF_BLOCK`] (4) triangle
 //! references may be one leaf (a binary leaf with more stays as it is; greedy makes every such
 //! subtree a leaf, the programme only where that is cheaper):
 //! four triangles are one SSE watertight test (`TriTest::test_leaf`), so a ray tests the four for
@@ -165,7 +165,7 @@ pub struct WideBvh {
 }
 
 impl WideBvh {
-    /// Greedy collapse of `bvh` (module doc). Errors on a malformed input (index out of range or a
+    /// The default (SAH-optimal) collapse of `bvh` (module doc). Errors on a malformed input (index out of range or a
     /// node reached twice), which a validated BVH never is.
     pub fn build(bvh: &Bvh, width: usize) -> Result<WideBvh, String> {
         Self::build_with(bvh, width, Collapse::default())
@@ -192,7 +192,8 @@ impl WideBvh {
             Collapse::Optimal(c) => Some(Optimal::plan(nodes, &order, &refs, width, c)),
         };
         drop(order);
-        // A binary subtree of at most LEAF_BLOCK references is one leaf here (module doc).
+        // Greedy: a binary subtree of at most LEAF_BLOCK references is one leaf (module doc); the
+        // programme decides for itself.
         let leafish = |k: u32| match &optimal {
             None => nodes[k as usize].is_leaf() || refs[k as usize] <= LEAF_BLOCK,
             Some(o) => o.is_leaf(k),

@@ -1,7 +1,7 @@
 //! SAH-optimal collapse of a binary BVH into a `W`-wide one: the dynamic programme of Ylitie,
 //! Karras and Laine 2017 ("Efficient incoherent ray traversal on GPUs through compressed wide
 //! BVHs", section 3.1), with bvhlab's leaves (a binary leaf, or a binary subtree of at most
-//! [`LEAF_BLOCK`] references combined into one leaf, tested four triangles at a time).
+//! [`LEAF_BLOCK`](crate::wide::LEAF_BLOCK) references combined into one leaf, tested four triangles at a time).
 //!
 //! For every binary node `n` and `i` in `1..=W`, `cost(n, i)` is the least SAH cost of the part of
 //! the tree below `n` represented as at most `i` subtrees that become children of one wide node:
@@ -13,7 +13,12 @@
 //! `leaf(n) = c_leaf SA(n) ceil(refs / 4)` (one four-wide triangle test per four references) where
 //! a leaf is allowed, else infinite; a binary leaf cannot be opened, so all its costs are its leaf
 //! cost. Ylitie et al. also let the programme form leaves of any subtree up to its triangle limit;
-//! here the limit is the combined leaf's [`LEAF_BLOCK`], as in the greedy collapse.
+//! here the limit is `max_leaf` (the combined leaf's `LEAF_BLOCK`, 4, by default, as in the greedy
+//! collapse). The root is always a wide node (its box is tested before the traversal's first
+//! step): its cost is `c_node SA(root)` plus the cheaper of its one leaf child and `dist(root, W)`.
+//! An SBVH subtree may hold two fragments of one triangle; a combined leaf keeps it once, so the
+//! programme's leaf cost (per reference) may overstate such a leaf: its choice is then optimal
+//! for the reference counts, not exactly for the stored leaves.
 use bvhlab_bvh::{Bvh, Node};
 
 /// The decisions of the programme: per binary node and `i`, `choice[n * W + i - 1]`:
@@ -67,6 +72,9 @@ impl Optimal {
             let at = b * width;
             if nd.is_leaf() {
                 cost[at..at + width].fill(leaf);
+                if b == 0 {
+                    cost[at] = w.c_node * sa + leaf;
+                }
                 continue;
             }
             let (l, r) = (nd.first as usize * width, (nd.first as usize + 1) * width);
@@ -85,9 +93,22 @@ impl Optimal {
                 best
             };
             let (dw, kw) = dist(width);
-            let inner = w.c_node * sa + dw;
-            // Ties go to the leaf (fewer nodes for the same cost).
-            let (c1, k1) = if leaf <= inner { (leaf, 0) } else { (inner, kw) };
+            // Ties go to the leaf (fewer nodes for the same cost). The root pays for its wide node
+            // either way, so there the leaf competes with the shared-out slots alone.
+            let (c1, k1) = if b == 0 {
+                if leaf_ok && leaf <= dw {
+                    (w.c_node * sa + leaf, 0)
+                } else {
+                    (w.c_node * sa + dw, kw)
+                }
+            } else {
+                let inner = w.c_node * sa + dw;
+                if leaf_ok && leaf <= inner {
+                    (leaf, 0)
+                } else {
+                    (inner, kw)
+                }
+            };
             cost[at] = c1;
             choice[at] = k1;
             for i in 2..=width {

@@ -6,7 +6,7 @@
 mod common;
 use bvhlab_bvh::CostParams;
 use bvhlab_layout::cwbvh::CwBvh;
-use bvhlab_layout::wide::{Simd, WideBvh};
+use bvhlab_layout::wide::{Collapse, Simd, WideBvh};
 use bvhlab_layout::Layout;
 use bvhlab_trace::fast::{Exact, Watertight};
 use bvhlab_trace::check_agreement;
@@ -21,7 +21,12 @@ fn cw_of(l: &Layout) -> &CwBvh {
 
 /// Oracle, timed paths, memory and the SAH against bvh8; returns SAH(cwbvh) / SAH(bvh8).
 fn check_cw(c: &Case) -> f64 {
-    let l = check(c, &spec("cwbvh", &[]));
+    check_cw_with(c, "sah")
+}
+
+/// [`check_cw`] with the `collapse` parameter given (bvh8 built with the same collapse).
+fn check_cw_with(c: &Case, collapse: &str) -> f64 {
+    let l = check(c, &spec("cwbvh", &[("collapse", collapse)]));
     let cw = cw_of(&l);
     let tris = &c.scene.triangles;
     let store = cw.store(tris);
@@ -30,7 +35,8 @@ fn check_cw(c: &Case) -> f64 {
         let fast = cw.hits_with::<Watertight>(&store, &c.rays, simd);
         check_agreement(tris, &c.rays, &fast, &c.want, 8).unwrap_or_else(|e| panic!("{} {simd:?}: {e}", c.spec));
     }
-    let w8 = WideBvh::build(&c.bvh, 8).unwrap();
+    let w8 = WideBvh::build_with(&c.bvh, 8, cw.collapse).unwrap();
+    assert_eq!(cw.collapse, if collapse == "greedy" { Collapse::Greedy } else { Collapse::default() });
     assert_eq!(cw.nodes.len(), w8.nodes());
     assert_eq!(cw.leaves.len(), w8.leaves.len());
     let m = l.memory();
@@ -50,9 +56,11 @@ fn cwbvh_matches_brute_force_and_costs_little_sah() {
     for s in SCENES {
         for leaf in [1, 2, 8] {
             let c = case(s, leaf, 2000, 7);
-            let ratio = check_cw(&c);
-            // 8-bit boxes on a per-node grid: a few percent at most (measured 1.00-1.04 here).
-            assert!(ratio < 1.10, "{s} leaf {leaf}: SAH {ratio} x bvh8's");
+            for collapse in ["sah", "greedy"] {
+                let ratio = check_cw_with(&c, collapse);
+                // 8-bit boxes on a per-node grid: a few percent at most (measured 1.00-1.04 here).
+                assert!(ratio < 1.10, "{s} leaf {leaf} {collapse}: SAH {ratio} x bvh8's");
+            }
         }
     }
 }

@@ -3,7 +3,7 @@
 //! agrees within `bvhlab_trace::agrees`' tolerance with the watertight f32 test. Structural
 //! validation accepts the collapse and rejects broken copies.
 mod common;
-use bvhlab_bvh::{Bvh, Node};
+use bvhlab_bvh::{Aabb, Bvh, Node};
 use bvhlab_geom::Vec3;
 use bvhlab_layout::wide::{Collapse, CollapseCost, Simd, WideBvh, EMPTY, LEAF_BIT, LEAF_BLOCK};
 use bvhlab_layout::wide_collapse::optimal_cost;
@@ -67,7 +67,7 @@ fn collapse_fills_nodes_and_lowers_node_visits() {
     for (name, width) in [("bvh4", 4usize), ("bvh8", 8)] {
         let l = build(&spec(name, &[]), &c.bvh, &c.scene.triangles).unwrap();
         let w = wide_of(&l);
-        // Greedy collapse: each wide node stands for up to width - 1 binary inner nodes
+        // The (SAH-optimal) collapse: each wide node stands for up to width - 1 binary inner nodes
         // (on average at least 1.5 here: nodes over two leaves keep two children).
         let inner = c.bvh.nodes.iter().filter(|n| !n.is_leaf()).count();
         assert!(w.nodes() * 3 <= inner * 2, "{name}: {} wide nodes for {inner} binary inner nodes", w.nodes());
@@ -212,9 +212,11 @@ fn timed_path_refuses_a_store_without_leaf_ends() {
     w.hits(&TriStore::new(&w.prim_indices, &c.scene.triangles), &c.rays);
 }
 
-/// The cheapest collapse of the subtree below `n` as one child (leaf or wide node), by trying every
-/// way to cut each wide node's subtree into at most `width` children: the oracle of the programme.
-fn brute_best(bvh: &Bvh, n: usize, width: usize, w: CollapseCost) -> f64 {
+/// The parts of the cheapest collapse of the subtree below `n`, by trying every way to cut each wide
+/// node's subtree into at most `width` children (the oracle of the programme): its cost as a leaf
+/// (infinite where no leaf may be) and the least cost of sharing its slots among subtrees of its
+/// two children (infinite for a binary leaf).
+fn brute_parts(bvh: &Bvh, n: usize, width: usize, w: CollapseCost) -> (f64, f64) {
     let nd = &bvh.nodes[n];
     let sa = nd.bounds.area();
     let refs = |k: usize| -> u32 {
@@ -232,7 +234,7 @@ fn brute_best(bvh: &Bvh, n: usize, width: usize, w: CollapseCost) -> f64 {
     };
     let leaf = w.c_leaf as f64 * sa * refs(n).div_ceil(w.block).max(1) as f64;
     if nd.is_leaf() {
-        return leaf;
+        return (leaf, f64::INFINITY);
     }
     // Every cut of the subtree below `k` into at most `max` roots.
     fn cuts(bvh: &Bvh, k: usize, max: usize) -> Vec<Vec<usize>> {
@@ -249,15 +251,26 @@ fn brute_best(bvh: &Bvh, n: usize, width: usize, w: CollapseCost) -> f64 {
         out
     }
     let (l, r) = (nd.first as usize, nd.first as usize + 1);
-    let mut inner = f64::INFINITY;
+    let mut dist = f64::INFINITY;
     for a in cuts(bvh, l, width - 1) {
         for b in cuts(bvh, r, width - a.len()) {
             let c: f64 = a.iter().chain(&b).map(|&k| brute_best(bvh, k, width, w)).sum();
-            inner = inner.min(c);
+            dist = dist.min(c);
         }
     }
-    let inner = w.c_node as f64 * sa + inner;
-    if refs(n) <= w.max_leaf { leaf.min(inner) } else { inner }
+    (if refs(n) <= w.max_leaf { leaf } else { f64::INFINITY }, dist)
+}
+
+/// The cheapest collapse of the subtree below `n` as one child: a leaf, or a wide node.
+fn brute_best(bvh: &Bvh, n: usize, width: usize, w: CollapseCost) -> f64 {
+    let (leaf, dist) = brute_parts(bvh, n, width, w);
+    leaf.min(w.c_node as f64 * bvh.nodes[n].bounds.area() + dist)
+}
+
+/// The whole tree: the root is always a wide node, with one leaf child or its slots shared out.
+fn brute_root(bvh: &Bvh, width: usize, w: CollapseCost) -> f64 {
+    let (leaf, dist) = brute_parts(bvh, 0, width, w);
+    w.c_node as f64 * bvh.nodes[0].bounds.area() + leaf.min(dist)
 }
 
 #[test]
@@ -272,14 +285,33 @@ fn optimal_collapse_is_optimal() {
         let c = case(s, n, 10, 1);
         for width in [4, 8] {
             for w in weights {
-                let want = if c.bvh.nodes[0].is_leaf() {
-                    w.c_leaf as f64 * c.bvh.nodes[0].bounds.area() * c.bvh.nodes[0].count.div_ceil(w.block) as f64
-                } else {
-                    brute_best(&c.bvh, 0, width, w)
-                } / c.bvh.nodes[0].bounds.area();
+                let want = brute_root(&c.bvh, width, w) / c.bvh.nodes[0].bounds.area();
                 let got = optimal_cost(&c.bvh, width, w).unwrap();
                 assert!((got - want).abs() <= 1e-4 * want, "{s} width {width} {w:?}: programme {got}, exhaustive {want}");
             }
+        }
+    }
+    // Tiny trees, where the root itself may be one leaf: two leaves of one and two triangles whose
+    // boxes are small beside the root's (opening the root is cheaper) or fill it (one leaf is).
+    let leaf = |lo: f32, hi: f32, first: u32, count: u32| Node::leaf(Aabb::new(Vec3::splat(lo), Vec3::splat(hi)), first, count);
+    for (a, b) in [((0.0, 0.1), (0.9, 1.0)), ((0.0, 1.0), (0.0, 1.0))] {
+        let bvh = Bvh {
+            nodes: vec![
+                Node::inner(Aabb::new(Vec3::ZERO, Vec3::ONE), 1),
+                leaf(a.0, a.1, 0, 1),
+                leaf(b.0, b.1, 1, 2),
+            ],
+            prim_indices: vec![0, 1, 2],
+        };
+        for width in [4, 8] {
+            let w = weights[0];
+            // Areas relative to the root's, as the programme's.
+            let want = brute_root(&bvh, width, w) / bvh.nodes[0].bounds.area();
+            let got = optimal_cost(&bvh, width, w).unwrap();
+            let built = WideBvh::build_with(&bvh, width, Collapse::Optimal(w)).unwrap();
+            assert!((got - want).abs() <= 1e-6 * want && (built.collapse_cost(w) - want).abs() <= 1e-6 * want, "{a:?} {b:?}: programme {got}, built {}, exhaustive {want}", built.collapse_cost(w));
+            let children = (0..width).filter(|&s| built.child(0, s).0 != EMPTY).count();
+            assert_eq!(children, if a.1 - a.0 < 0.5 { 2 } else { 1 }, "{a:?} {b:?} width {width}");
         }
     }
     // Larger trees: the tree built has the cost the programme promised, at most the greedy tree's;

@@ -15,9 +15,9 @@
 //! ~40 over a generated scene). +collapse: 13-40. +ibo (max_passes=2, after sweep-sah leaf=1): 156
 //! at 200k, 163 at 50k. Random rays: nothing per triangle, ~37 B per ray. The constants below are
 //! these shares rounded up by ~20% (binned 800k: estimate 264 MB, measured 179 MB; sweep leaf=1 +
-//! ibo 200k: 117 vs 93). `layout` could not be measured here (the stage is being written in
-//! parallel): its constant is derived from the layouts' sizes (Kilian 6.2: at most the BVH2's 32
-//! bytes per node, ~2 nodes per triangle, plus build buffers) and should be re-measured.
+//! ibo 200k: 117 vs 93). `layout` was first derived from the layouts' sizes (Kilian 6.2: at most
+//! the BVH2's 32 bytes per node, ~2 nodes per triangle, plus build buffers); measured since for
+//! bvh8's optimal collapse (see its constant).
 use crate::error::{Error, Result};
 use crate::registry::Registry;
 use crate::stages::{ChainSpec, RaySpec, SceneSource};

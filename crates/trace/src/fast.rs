@@ -323,7 +323,9 @@ unsafe fn watertight4<const KX: usize, const KY: usize, const KZ: usize>(
     unsafe {
         // Columns of four 4-float rows: rows[j] = floats o..o + 4 of triangle j.
         let cols = |o: usize| {
-            let row = |j: usize| _mm_loadu_ps((q[j].v.as_ptr() as *const f32).add(o));
+            // From the whole record (48 bytes, `repr(C)`): floats 8..12 run past `v` into `prim`,
+            // `last` and `pad`.
+            let row = |j: usize| _mm_loadu_ps((&q[j] as *const WTri as *const f32).add(o));
             let (r0, r1, r2, r3) = (row(0), row(1), row(2), row(3));
             let (t0, t1) = (_mm_unpacklo_ps(r0, r1), _mm_unpacklo_ps(r2, r3));
             let (t2, t3) = (_mm_unpackhi_ps(r0, r1), _mm_unpackhi_ps(r2, r3));

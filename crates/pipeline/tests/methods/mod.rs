@@ -52,6 +52,9 @@ pub const LAYOUT_VARIANTS: &[(&str, &[(&str, &str)])] = &[
     ("octree", &[("prim_threshold", "1"), ("max_depth", "12")]),
     ("octree_1bit", &[("fill", "dense")]),
     ("octree_1bit", &[("chunk_bytes", "16"), ("fill", "bfs")]),
+    ("bvh4", &[("collapse", "greedy")]),
+    ("bvh8", &[("collapse", "greedy")]),
+    ("cwbvh", &[("collapse", "greedy")]),
 ];
 
 pub fn raw(kv: &[(&str, &str)]) -> BTreeMap<String, String> {
