@@ -308,6 +308,9 @@ struct Scanner {
     /// above every index of its kind before it: the only ones that can be the first out of range
     /// at the end, kept to name its line.
     forward: Vec<(usize, u64, usize)>,
+    /// Faces since the last `o` or `g` statement that ended an object (tobj ends one there when it
+    /// has faces, and resolves their indices then).
+    object_faces: usize,
 }
 
 const KIND: [&str; 3] = ["vertex", "texture coordinate", "normal"];
@@ -420,6 +423,19 @@ impl Scanner {
                     return Err(format!("face with {k} vertices (a face needs at least 3)"));
                 }
                 self.faces += 1;
+                self.object_faces += 1;
+            }
+            // tobj ends the object here and resolves its faces' indices: one still pointing ahead
+            // would fail there as "index out of bounds" without a line; name it instead.
+            Some("o") | Some("g") if self.object_faces > 0 => {
+                if let Some(&(kind, x, at)) = self.unresolved() {
+                    return Err(format!(
+                        "face on line {at} refers to {} {x}, which is defined only after its object ends \
+                         here ({} defined so far): an index may point ahead only within its object",
+                        KIND[kind], self.counts[kind]
+                    ));
+                }
+                self.object_faces = 0;
             }
             // Polylines would be fanned into triangles by tobj, and `usemtl` without a name is a
             // tobj error: neither matters for positions only, so both become comments.
@@ -433,6 +449,14 @@ impl Scanner {
     /// Whether every index read so far refers to an element already defined.
     fn resolved(&self) -> bool {
         self.max_ref.iter().zip(self.counts).all(|(&r, c)| r <= c as u64)
+    }
+
+    /// The first remembered forward index still beyond what is defined: (kind, index, line).
+    fn unresolved(&self) -> Option<&(usize, u64, usize)> {
+        if self.resolved() {
+            return None;
+        }
+        self.forward.iter().find(|&&(k, x, _)| x > self.counts[k] as u64)
     }
 
     fn finish(&self) -> Result<ScanResult, (usize, String)> {

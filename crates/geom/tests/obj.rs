@@ -197,6 +197,15 @@ fn forward_references_resolve_against_the_whole_file() {
     assert_eq!(s.triangles.len(), 1);
     let (l, _) = err_line("f 1 2 3\nv 0 0 0\nv 1 0 0\nf 1 2 4\nv 0 1 0\n");
     assert_eq!(l, Some(4));
+    // Not past the end of the face's object, where tobj resolves it: named with both lines.
+    let (l, reason) = err_line("v 0 0 0\nf 1 2 3\ng next\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    assert_eq!(l, Some(3), "{reason}");
+    assert!(reason.contains("line 2") && reason.contains("vertex 2"), "{reason}");
+    // An `o` or `g` before any face of its object ends nothing.
+    let s = load_str("o a\nf 1 2 3\no b\nv 0 0 0\nv 1 0 0\nv 0 1 0\n");
+    assert!(s.is_err());
+    let s = load_str("v 0 0 0\no a\ng b\nf 1 2 3\nv 1 0 0\nv 0 1 0\no c\nf 1 2 3\n").unwrap();
+    assert_eq!(s.triangles.len(), 2);
 }
 
 #[test]
