@@ -11,7 +11,7 @@
 //! the binary node's two children and repeatedly replaces the inner child of largest surface area
 //! by its two children until it has `width` children or only leaves. Measured on the four
 //! reference scenes (docs/decisions.md), the optimal collapse has 4-10 % lower wide SAH cost and
-//! traces 0-11 % faster (bvh8; bvh4 1-11 %). Leaves: a binary subtree with at most [`LEAF_BLOCK`] (4) triangle
+//! traces 0-8 % faster (bvh8; bvh4 1-11 %). Leaves: a binary subtree with at most [`LEAF_BLOCK`] (4) triangle
 //! references may be one leaf (a binary leaf with more stays as it is; greedy makes every such
 //! subtree a leaf, the programme only where that is cheaper):
 //! four triangles are one SSE watertight test (`TriTest::test_leaf`), so a ray tests the four for
