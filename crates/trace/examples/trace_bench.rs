@@ -5,9 +5,9 @@
 //! image size), their shadow rays and random rays (thesis 4.4), each `runs` times on 1 thread and
 //! on all threads. One JSON line per ray set: median Mrays/s, mean steps and tests per ray, hit
 //! rate. With a PNG path, also writes the primary-ray traversal-step heat map (Bittner 2013 fig. 1).
-use bvhlab_geom::stats::median;
 use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_bvh::Bvh;
+use bvhlab_geom::stats::median;
 use bvhlab_geom::Triangle;
 use bvhlab_trace::{heatmap, primary_rays, random_rays, shadow_rays, trace, Camera, Ray};
 use std::time::Instant;

@@ -4,12 +4,13 @@
 
 pub mod fast;
 pub mod heatmap;
+pub mod pairs;
 pub mod rays;
 pub mod traverse;
 
-pub use rays::{primary_rays, random_rays, shadow_rays, Camera, Ray};
 pub use fast::{agrees, check_agreement, FastBvh2, TriStore, WTri};
-pub use traverse::{Pending, 
-    accept, brute_force, brute_force_one, intersect_triangle, trace, trace_with, Hit, RayBox,
-    Stack, TraceStats, SLAB_ROBUST,
+pub use rays::{primary_rays, random_rays, shadow_rays, Camera, Ray};
+pub use traverse::{
+    accept, brute_force, brute_force_one, intersect_triangle, trace, trace_with, Hit, Pending,
+    RayBox, Stack, TraceStats, SLAB_ROBUST,
 };

@@ -25,12 +25,19 @@ impl Hit {
     };
     /// No hit yet, searching up to `tmax` (a traversal's start).
     pub fn within(tmax: f32) -> Hit {
-        Hit { t: tmax, prim: u32::MAX }
+        Hit {
+            t: tmax,
+            prim: u32::MAX,
+        }
     }
     /// The hit, or [`Hit::NONE`] when the search found nothing (its `t` was only the limit).
     #[inline(always)]
     pub fn found(self) -> Hit {
-        if self.is_hit() { self } else { Hit::NONE }
+        if self.is_hit() {
+            self
+        } else {
+            Hit::NONE
+        }
     }
     pub fn is_hit(&self) -> bool {
         self.prim != u32::MAX
@@ -235,6 +242,13 @@ pub trait Pending: Copy + Default {
 impl Pending for (u32, f32) {
     fn entry(&self) -> f32 {
         self.1
+    }
+}
+
+/// (child, count, entry): a pending child of the pair layout ([`crate::pairs`]).
+impl Pending for (u32, u32, f32) {
+    fn entry(&self) -> f32 {
+        self.2
     }
 }
 

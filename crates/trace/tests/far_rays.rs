@@ -24,7 +24,11 @@ fn aimed_rays(tris: &[Triangle], c: [f64; 3], r: f64, n: usize) -> Vec<Ray> {
             let l = (dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]).sqrt();
             Ray {
                 origin: Vec3::new(o[0] as f32, o[1] as f32, o[2] as f32),
-                dir: Vec3::new((dir[0] / l) as f32, (dir[1] / l) as f32, (dir[2] / l) as f32),
+                dir: Vec3::new(
+                    (dir[0] / l) as f32,
+                    (dir[1] / l) as f32,
+                    (dir[2] / l) as f32,
+                ),
                 tmax: f32::INFINITY,
             }
         })
@@ -41,7 +45,10 @@ fn far_rays_find_the_brute_force_hit() {
     ] {
         let scene = load_scene(spec).unwrap();
         let (boxes, centers) = scene.boxes_and_centers();
-        let cfg = TopDownConfig { leaf: 1, ..Default::default() };
+        let cfg = TopDownConfig {
+            leaf: 1,
+            ..Default::default()
+        };
         let bvh = binned_sah::build(&boxes, &centers, 16, &cfg);
         let b = scene.bounds();
         let c = b.center().as_dvec3().to_array();
@@ -53,7 +60,12 @@ fn far_rays_find_the_brute_force_hit() {
         // ~100 units off); the huge sheets are hit. Either way traversal must equal brute force.
         hits += want.iter().filter(|h| h.is_hit()).count();
         let wrong = (0..rays.len()).filter(|&i| got.hits[i] != want[i]).count();
-        assert_eq!(wrong, 0, "{spec}: {wrong} of {} rays differ from brute force", rays.len());
+        assert_eq!(
+            wrong,
+            0,
+            "{spec}: {wrong} of {} rays differ from brute force",
+            rays.len()
+        );
     }
     assert!(hits > 500, "{hits} hits");
 }

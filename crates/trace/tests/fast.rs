@@ -28,7 +28,11 @@ fn check(bvh: &Bvh, tris: &[Triangle], rays: &[Ray], edge: usize) {
     assert_eq!(got.steps, want.steps);
     assert_eq!(got.intersections, want.intersections);
     let fast = f.hits(rays);
-    assert_eq!(fast, f.trace::<Watertight>(rays).hits, "counting changes no hit");
+    assert_eq!(
+        fast,
+        f.trace::<Watertight>(rays).hits,
+        "counting changes no hit"
+    );
     let bf = brute_force(tris, rays);
     check_agreement(tris, rays, &fast, &bf, edge).unwrap();
 }
@@ -59,14 +63,21 @@ fn zero_direction_components_and_empty_inputs() {
             (Vec3::new(c.x, -1.0, c.z), Vec3::Y),
             (Vec3::new(c.x, c.y, c.z), Vec3::ZERO),
         ] {
-            rays.push(Ray { origin: o, dir: d, tmax: f32::INFINITY });
+            rays.push(Ray {
+                origin: o,
+                dir: d,
+                tmax: f32::INFINITY,
+            });
         }
     }
     check(&bvh, &tris, &rays, 5);
     let f = FastBvh2::new(&bvh, &tris);
     assert!(f.hits(&rays).iter().skip(4).step_by(5).all(|h| !h.is_hit()));
     let empty = Bvh::default();
-    assert!(FastBvh2::new(&empty, &tris).hits(&rays).iter().all(|h| !h.is_hit()));
+    assert!(FastBvh2::new(&empty, &tris)
+        .hits(&rays)
+        .iter()
+        .all(|h| !h.is_hit()));
 }
 
 /// A grid of quads split into triangles: rays aimed exactly at shared edges and vertices (in the
@@ -75,7 +86,13 @@ fn zero_direction_components_and_empty_inputs() {
 fn watertight_on_shared_edges_and_vertices() {
     let n = 40;
     let mut tris = Vec::new();
-    let p = |i: usize, j: usize| Vec3::new(i as f32 * 0.37, j as f32 * 0.29, 0.5 + 0.01 * (i * j) as f32);
+    let p = |i: usize, j: usize| {
+        Vec3::new(
+            i as f32 * 0.37,
+            j as f32 * 0.29,
+            0.5 + 0.01 * (i * j) as f32,
+        )
+    };
     for i in 0..n {
         for j in 0..n {
             tris.push(Triangle::new(p(i, j), p(i + 1, j), p(i + 1, j + 1)));
@@ -92,13 +109,20 @@ fn watertight_on_shared_edges_and_vertices() {
             for target in [v, mid] {
                 let origin = Vec3::new(3.0, 4.0, 20.0);
                 let d = (target - origin).normalize();
-                rays.push(Ray { origin, dir: d, tmax: f32::INFINITY });
+                rays.push(Ray {
+                    origin,
+                    dir: d,
+                    tmax: f32::INFINITY,
+                });
             }
         }
     }
     let hits = f.hits(&rays);
     let missed = hits.iter().filter(|h| !h.is_hit()).count();
-    assert_eq!(missed, 0, "rays through shared edges or vertices passed through the mesh");
+    assert_eq!(
+        missed, 0,
+        "rays through shared edges or vertices passed through the mesh"
+    );
 }
 
 /// The f32 test falls back to f64 outside its trusted range: the same scene at 1e-30 and 1e30.
@@ -106,11 +130,20 @@ fn watertight_on_shared_edges_and_vertices() {
 fn tiny_and_huge_scenes() {
     let base = random_triangles(1000, 0.05, 11);
     for s in [1e-30f32, 1e-12, 1e12, 1e30] {
-        let tris: Vec<Triangle> = base.iter().map(|t| Triangle { v: t.v.map(|v| v * s) }).collect();
+        let tris: Vec<Triangle> = base
+            .iter()
+            .map(|t| Triangle {
+                v: t.v.map(|v| v * s),
+            })
+            .collect();
         let bvh = median_bvh(&tris, 2);
         let rays = rays_for(&tris, 1500, 2);
         check(&bvh, &tris, &rays, 3);
-        let hits = FastBvh2::new(&bvh, &tris).hits(&rays).iter().filter(|h| h.is_hit()).count();
+        let hits = FastBvh2::new(&bvh, &tris)
+            .hits(&rays)
+            .iter()
+            .filter(|h| h.is_hit())
+            .count();
         assert!(hits > 50, "scale {s}: {hits} hits");
     }
 }
@@ -122,11 +155,14 @@ fn identical_at_any_thread_count() {
     let rays = rays_for(&tris, 5000, 8);
     let f = FastBvh2::new(&bvh, &tris);
     let run = |n| {
-        rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| f.hits(&rays))
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+            .install(|| f.hits(&rays))
     };
     assert_eq!(run(1), run(3));
 }
-
 
 /// The four-at-a-time watertight leaf test (SSE) finds, for every leaf length and ray, the hit the
 /// one-at-a-time watertight test finds, bit for bit: on random triangles, on a fan of triangles
@@ -143,23 +179,42 @@ fn four_wide_leaf_test_equals_the_scalar_one() {
                 let t = (k as f32 + i) * std::f32::consts::FRAC_PI_4;
                 Vec3::new(t.cos(), t.sin(), 0.0)
             };
-            Triangle { v: [Vec3::ZERO, a(0.0), a(1.0)] }
+            Triangle {
+                v: [Vec3::ZERO, a(0.0), a(1.0)],
+            }
         })
         .collect();
     sets.push(fan);
     for scale in [1e-20f32, 1e20] {
-        sets.push(random_triangles(64, 0.3, 12).iter().map(|t| Triangle { v: t.v.map(|v| v * scale) }).collect());
+        sets.push(
+            random_triangles(64, 0.3, 12)
+                .iter()
+                .map(|t| Triangle {
+                    v: t.v.map(|v| v * scale),
+                })
+                .collect(),
+        );
     }
     for (si, tris) in sets.iter().enumerate() {
         let ids: Vec<u32> = (0..tris.len() as u32).collect();
         let mut rays = rays_for(tris, 300, 5 + si as u64);
         // Rays straight through the shared vertex and along the fan's edges.
-        for d in [Vec3::new(0.0, 0.0, -1.0), Vec3::new(0.3, 0.0, -1.0), Vec3::new(0.0, 0.7, -1.0)] {
-            rays.push(Ray { origin: Vec3::new(0.0, 0.0, 1.0), dir: d, tmax: f32::INFINITY });
+        for d in [
+            Vec3::new(0.0, 0.0, -1.0),
+            Vec3::new(0.3, 0.0, -1.0),
+            Vec3::new(0.0, 0.7, -1.0),
+        ] {
+            rays.push(Ray {
+                origin: Vec3::new(0.0, 0.0, 1.0),
+                dir: d,
+                tmax: f32::INFINITY,
+            });
         }
         for len in 1..=9usize {
             // Leaves of `len` triangles, each ending with a mark.
-            let leaves: Vec<[u32; 2]> = (0..tris.len() as u32 / len as u32).map(|k| [k * len as u32, len as u32]).collect();
+            let leaves: Vec<[u32; 2]> = (0..tris.len() as u32 / len as u32)
+                .map(|k| [k * len as u32, len as u32])
+                .collect();
             let store = TriStore::with_leaves(&ids, tris, &leaves);
             for r in &rays {
                 let wr = WoopRay::new(r.origin, r.dir);
@@ -173,9 +228,100 @@ fn four_wide_leaf_test_equals_the_scalar_one() {
                         }
                     }
                     assert_eq!(n as usize, len);
-                    assert_eq!((got.t.to_bits(), got.prim), (want.t.to_bits(), want.prim), "set {si} len {len}");
+                    assert_eq!(
+                        (got.t.to_bits(), got.prim),
+                        (want.t.to_bits(), want.prim),
+                        "set {si} len {len}"
+                    );
                 }
             }
         }
     }
+}
+
+/// The child-pair layout of the timed path holds every inner node's two children once, with the
+/// children's boxes and leaf ranges as they are; a malformed tree gives none (the flat traversal
+/// then serves every ray, with the same hits).
+#[test]
+fn child_pairs_hold_every_child_once() {
+    use bvhlab_trace::pairs::Pairs;
+    let tris = random_triangles(2000, 0.05, 11);
+    for bvh in [
+        median_bvh(&tris, 1),
+        median_bvh(&tris, 3),
+        caterpillar(&tris[..300]),
+    ] {
+        let pairs = Pairs::new(&bvh.nodes).expect("a valid tree with an inner root has pairs");
+        let inner = bvh.nodes.iter().filter(|n| !n.is_leaf()).count();
+        assert_eq!(pairs.pairs().len(), inner);
+        // Walk the pairs and collect every leaf child's range and box.
+        let mut leaves: Vec<(u32, u32, [f32; 6])> = Vec::new();
+        let mut todo = vec![0usize];
+        let mut reached = vec![0u32; pairs.pairs().len()];
+        while let Some(p) = todo.pop() {
+            reached[p] += 1;
+            let pair = &pairs.pairs()[p];
+            for side in 0..2 {
+                let b = [0, 1, 2].map(|a| pair.axis[a][side]);
+                let e = [0, 1, 2].map(|a| pair.axis[a][side + 2]);
+                if pair.count[side] > 0 {
+                    leaves.push((
+                        pair.child[side],
+                        pair.count[side],
+                        [b[0], b[1], b[2], e[0], e[1], e[2]],
+                    ));
+                } else {
+                    todo.push(pair.child[side] as usize);
+                }
+            }
+        }
+        assert!(
+            reached.iter().all(|&r| r == 1),
+            "every pair reached exactly once"
+        );
+        let mut want: Vec<(u32, u32, [f32; 6])> = bvh
+            .nodes
+            .iter()
+            .filter(|n| n.is_leaf())
+            .map(|n| {
+                (
+                    n.first,
+                    n.count,
+                    [
+                        n.bounds.min.x,
+                        n.bounds.min.y,
+                        n.bounds.min.z,
+                        n.bounds.max.x,
+                        n.bounds.max.y,
+                        n.bounds.max.z,
+                    ],
+                )
+            })
+            .collect();
+        leaves.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        want.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        assert_eq!(leaves, want);
+    }
+    assert!(
+        Pairs::new(&one_leaf(&tris[..10]).nodes).is_none(),
+        "a leaf root has nothing to pair"
+    );
+    // Malformed: a child index past the end; two inner nodes sharing children (a DAG).
+    let mut bad = median_bvh(&tris, 2);
+    bad.nodes[0].first = bad.nodes.len() as u32 - 1;
+    assert!(Pairs::new(&bad.nodes).is_none());
+    let mut dag = median_bvh(&tris, 2);
+    let inner: Vec<usize> = (1..dag.nodes.len())
+        .filter(|&i| !dag.nodes[i].is_leaf())
+        .take(2)
+        .collect();
+    dag.nodes[inner[1]].first = dag.nodes[inner[0]].first;
+    assert!(Pairs::new(&dag.nodes).is_none());
+    let rays = rays_for(&tris, 2000, 12);
+    let f = FastBvh2::new(&dag, &tris);
+    assert_eq!(
+        f.hits(&rays),
+        f.hits_flat(&rays),
+        "without pairs the flat traversal serves every ray"
+    );
 }

@@ -25,4 +25,3 @@ fn rgb_buffer_layout() {
     assert_eq!(&rgb[6..9], &[0, 255, 0]);
     assert!(heatmap_rgb(&[0; 5], 3, 2).is_err());
 }
-

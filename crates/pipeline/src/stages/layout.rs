@@ -16,10 +16,12 @@ use std::time::Instant;
 
 /// 3: layout names `qbvh` -> `qbvh_chunks`, `octree1` -> `octree_1bit` (issue 17); an `auto`
 ///    artifact records the chosen candidate by name. Layout contents are unchanged.
+/// 4: bvh2's timed traversal reads child pairs (`bvhlab_trace::pairs`); every layout's slowdown is
+///    against bvh2's time, so every layout node is timed again.
 /// A change of one layout bumps that layout's own version (`.with_version(2)` on its `METHOD` in
 /// `bvhlab_layout`): its layout nodes get new keys, and so do the `auto` nodes (which may choose
 /// it), nothing else.
-pub const LAYOUT_VERSION: u32 = 3;
+pub const LAYOUT_VERSION: u32 = 4;
 
 /// A layout request: a layout with its parameters, or the `auto` search (Kilian 2021 layouts; the
 /// chosen one then behaves as if it had been given).
