@@ -20,61 +20,69 @@ pub fn collapse(bvh: &Bvh, cost: CostParams) -> Bvh {
     }
     let repeats = has_repeats(&bvh.prim_indices);
     let (c_t, c_i) = (cost.c_t as f64, cost.c_i as f64);
-    // Children always have larger indices than parents in every layout we produce? Not guaranteed
-    // for all layouts, so compute a post-order explicitly.
-    let mut order = Vec::with_capacity(n);
-    let mut stack = vec![0u32];
-    while let Some(i) = stack.pop() {
-        order.push(i);
-        let nd = &bvh.nodes[i as usize];
-        if !nd.is_leaf() {
-            stack.push(nd.first);
-            stack.push(nd.first + 1);
-        }
-    }
-    let mut sub_cost = vec![0f64; n];
-    let mut count = vec![0u32; n];
+    // Post-order over an explicit stack (children's indices need not exceed their parent's); a
+    // finished subtree's cost, primitive count and (repeated references) distinct triangles wait
+    // on a value stack for its parent, so the only per-node array is the decision: the work memory
+    // is a byte per node, not the 17 of per-node costs, counts and order (the peak of the
+    // Morton builders, which collapse a tree of single-triangle leaves: issue 19.4).
     let mut make_leaf = vec![false; n];
-    // Repeated references: the sorted distinct triangles of each subtree (small subtrees only),
-    // dropped once the parent has merged them.
-    let mut distinct: Vec<Option<Vec<u32>>> = if repeats { vec![None; n] } else { Vec::new() };
-    for &i in order.iter().rev() {
+    let mut todo = vec![(0u32, false)];
+    let mut vals: Vec<(f64, u32, Option<Vec<u32>>)> = Vec::new();
+    while let Some((i, expanded)) = todo.pop() {
         let nd = &bvh.nodes[i as usize];
         let sa = nd.bounds.area_f64();
         let i = i as usize;
         if nd.is_leaf() {
-            count[i] = nd.count;
-            sub_cost[i] = c_i * sa * nd.count as f64;
             make_leaf[i] = true;
-            if repeats {
+            let distinct = repeats.then(|| {
                 let mut v = bvh.prim_indices[nd.first as usize..(nd.first + nd.count) as usize].to_vec();
                 v.sort_unstable();
-                distinct[i] = Some(v);
-            }
+                v
+            });
+            vals.push((c_i * sa * nd.count as f64, nd.count, distinct));
+        } else if !expanded {
+            // The left child's value ends up below the right one's.
+            todo.push((i as u32, true));
+            todo.push((nd.first + 1, false));
+            todo.push((nd.first, false));
         } else {
-            let (l, r) = (nd.first as usize, nd.first as usize + 1);
-            count[i] = count[l] + count[r];
-            if repeats {
-                if let (Some(a), Some(b)) = (distinct[l].take(), distinct[r].take()) {
-                    let m = merge_distinct(&a, &b);
-                    count[i] = m.len() as u32;
-                    if m.len() <= DISTINCT_CAP {
-                        distinct[i] = Some(m);
-                    }
+            let (Some((cost_r, count_r, dist_r)), Some((cost_l, count_l, dist_l))) = (vals.pop(), vals.pop()) else {
+                unreachable!("an expanded node's two children were finished before it")
+            };
+            let mut count = count_l + count_r;
+            let mut distinct = None;
+            if let (Some(a), Some(b)) = (dist_l, dist_r) {
+                let m = merge_distinct(&a, &b);
+                count = m.len() as u32;
+                if m.len() <= DISTINCT_CAP {
+                    distinct = Some(m);
                 }
             }
-            let as_inner = c_t * sa + sub_cost[l] + sub_cost[r];
-            let as_leaf = c_i * sa * count[i] as f64;
-            if as_leaf < as_inner {
+            let as_inner = c_t * sa + cost_l + cost_r;
+            let as_leaf = c_i * sa * count as f64;
+            let sub_cost = if as_leaf < as_inner {
                 make_leaf[i] = true;
-                sub_cost[i] = as_leaf;
+                as_leaf
             } else {
-                sub_cost[i] = as_inner;
-            }
+                as_inner
+            };
+            vals.push((sub_cost, count, distinct));
         }
     }
 
-    let mut out = Bvh { nodes: Vec::with_capacity(n), prim_indices: Vec::with_capacity(bvh.prim_indices.len()) };
+    // The output's size, so its arrays are allocated once and exactly: the root and both children
+    // of every inner node kept (an inner node none of whose ancestors became a leaf).
+    let mut out_nodes = 1usize;
+    let mut walk = vec![0u32];
+    while let Some(i) = walk.pop() {
+        let nd = &bvh.nodes[i as usize];
+        if !make_leaf[i as usize] {
+            out_nodes += 2;
+            walk.push(nd.first);
+            walk.push(nd.first + 1);
+        }
+    }
+    let mut out = Bvh { nodes: Vec::with_capacity(out_nodes), prim_indices: Vec::with_capacity(bvh.prim_indices.len()) };
     out.nodes.push(bvh.nodes[0]);
     // (old node, new slot)
     let mut work = vec![(0u32, 0u32)];
@@ -120,6 +128,11 @@ pub fn collapse(bvh: &Bvh, cost: CostParams) -> Bvh {
             work.push((nd.first + 1, left + 1));
             work.push((nd.first, left));
         }
+    }
+    debug_assert_eq!(out.nodes.len(), out_nodes);
+    if repeats {
+        // Collapsed leaves keep each triangle once: fewer references than the input's.
+        out.prim_indices.shrink_to_fit();
     }
     out
 }
