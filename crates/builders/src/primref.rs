@@ -208,28 +208,18 @@ pub(crate) fn partition_known_bounds<R: Ref>(
     is_left: impl Fn(&R) -> bool,
 ) -> (Range, Range) {
     let s = &mut refs[r.begin..r.end];
-    let (mut lcb, mut rcb) = (BoxA::EMPTY, BoxA::EMPTY);
-    let mut i = 0;
-    let mut j = s.len();
-    loop {
-        while i < j && is_left(&s[i]) {
-            lcb.grow_point(s[i].c());
-            i += 1;
-        }
-        while i < j && !is_left(&s[j - 1]) {
-            rcb.grow_point(s[j - 1].c());
-            j -= 1;
-        }
-        if i >= j {
-            break;
-        }
-        s.swap(i, j - 1);
-        lcb.grow_point(s[i].c());
-        rcb.grow_point(s[j - 1].c());
-        i += 1;
-        j -= 1;
-    }
-    let mid = r.begin + i;
+    let mid = hoare_blocks(s, &is_left);
+    // The centroid bounds of each side in a pass of their own (min / max: exact in any order),
+    // on elements just partitioned, mostly in cache (measured faster than growing them
+    // branch-free in the blocks' classification).
+    let cbounds = |part: &[R]| {
+        part.iter().fold(BoxA::EMPTY, |mut b, p| {
+            b.grow_point(p.c());
+            b
+        })
+    };
+    let (lcb, rcb) = (cbounds(&s[..mid]), cbounds(&s[mid..]));
+    let mid = r.begin + mid;
     (
         Range {
             begin: r.begin,
@@ -244,6 +234,73 @@ pub(crate) fn partition_known_bounds<R: Ref>(
             cbounds: rcb,
         },
     )
+}
+
+/// Elements per block of [`hoare_blocks`].
+const BLOCK: usize = 128;
+const _: () = assert!(BLOCK.is_power_of_two() && BLOCK <= 256);
+
+/// Hoare's partition (elements with `is_left` first; returns how many) with the classification
+/// taken out of the branches (Edelkamp and Weiss 2016, "BlockQuicksort: avoiding branch
+/// mispredictions in quicksort"): a block of `BLOCK` elements at each end is classified without
+/// branching into a list of offsets of the misplaced ones, and the lists are swapped pairwise. The
+/// k-th misplaced element from the left still meets the k-th misplaced one from the right, as in
+/// the plain scan, so the permutation is Hoare's exactly (and `partition_parallel`'s, which
+/// reproduces it): the same trees. On a random split half the plain scan's branches mispredicted
+/// (the profile's hottest spots in the binned build).
+#[inline]
+fn hoare_blocks<R>(s: &mut [R], is_left: &impl Fn(&R) -> bool) -> usize {
+    let (mut l, mut r) = (0usize, s.len());
+    // Pending offsets (from `l` / back from `r - 1`) of misplaced elements of the current blocks.
+    let (mut off_l, mut off_r) = ([0u8; BLOCK], [0u8; BLOCK]);
+    let (mut start_l, mut num_l, mut start_r, mut num_r) = (0usize, 0usize, 0usize, 0usize);
+    // Two whole blocks fit between the ends, so a swap never crosses them.
+    while r - l >= 2 * BLOCK {
+        if num_l == 0 {
+            start_l = 0;
+            for (i, x) in s[l..l + BLOCK].iter().enumerate() {
+                // (num_l <= i < BLOCK: the mask only spares the bounds check.)
+                off_l[num_l & (BLOCK - 1)] = i as u8;
+                num_l += !is_left(x) as usize;
+            }
+        }
+        if num_r == 0 {
+            start_r = 0;
+            for (i, x) in s[r - BLOCK..r].iter().rev().enumerate() {
+                off_r[num_r & (BLOCK - 1)] = i as u8;
+                num_r += is_left(x) as usize;
+            }
+        }
+        let m = num_l.min(num_r);
+        for k in 0..m {
+            let (a, b) = (off_l[(start_l + k) & (BLOCK - 1)], off_r[(start_r + k) & (BLOCK - 1)]);
+            s.swap(l + a as usize, r - 1 - b as usize);
+        }
+        (num_l, num_r, start_l, start_r) = (num_l - m, num_r - m, start_l + m, start_r + m);
+        if num_l == 0 {
+            l += BLOCK;
+        }
+        if num_r == 0 {
+            r -= BLOCK;
+        }
+    }
+    // The rest (fewer than two blocks, and a block whose misplaced elements are still pending):
+    // the plain scan, which finds those same elements next.
+    let (mut i, mut j) = (l, r);
+    loop {
+        while i < j && is_left(&s[i]) {
+            i += 1;
+        }
+        while i < j && !is_left(&s[j - 1]) {
+            j -= 1;
+        }
+        if i >= j {
+            return i;
+        }
+        s.swap(i, j - 1);
+        i += 1;
+        j -= 1;
+    }
 }
 
 /// Object-median split on `axis`: the lower half by (centre, index) goes left. The index tie-break
@@ -448,4 +505,56 @@ fn swap_misplaced<R: Ref>(s: &mut [R], flags: &[bool], mid: usize, chunk: usize)
                 }
             }
         });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bvhlab_geom::rng::SplitMix64;
+
+    /// The plain Hoare scan (what `hoare_blocks` must reproduce).
+    fn hoare_plain(s: &mut [(bool, u32)]) -> usize {
+        let (mut i, mut j) = (0, s.len());
+        loop {
+            while i < j && s[i].0 {
+                i += 1;
+            }
+            while i < j && !s[j - 1].0 {
+                j -= 1;
+            }
+            if i >= j {
+                return i;
+            }
+            s.swap(i, j - 1);
+            i += 1;
+            j -= 1;
+        }
+    }
+
+    /// The block partition gives Hoare's permutation exactly (the builders' trees depend on it,
+    /// and the parallel partition reproduces Hoare's): every length around the block sizes, left
+    /// fractions from none to all, runs of one side (one block's list empty while the other's is
+    /// full) and random sides.
+    #[test]
+    fn block_partition_is_hoares_permutation() {
+        let mut rng = SplitMix64::new(3);
+        let lens = [0, 1, 2, 127, 128, 129, 255, 256, 257, 383, 384, 511, 512, 1000, 4099, 20000];
+        for &n in &lens {
+            for p in [0.0, 0.02, 0.3, 0.5, 0.7, 0.98, 1.0] {
+                for runs in [false, true] {
+                    let v: Vec<(bool, u32)> = (0..n as u32)
+                        .map(|i| {
+                            let left = if runs { (i / 300) % 3 != 0 } else { rng.f64() < p };
+                            (left, i)
+                        })
+                        .collect();
+                    let (mut a, mut b) = (v.clone(), v);
+                    let ma = hoare_plain(&mut a);
+                    let mb = hoare_blocks(&mut b, &|x: &(bool, u32)| x.0);
+                    assert_eq!((ma, &a), (mb, &b), "n = {n}, p = {p}, runs = {runs}");
+                    assert!(a[..ma].iter().all(|x| x.0) && a[ma..].iter().all(|x| !x.0));
+                }
+            }
+        }
+    }
 }
