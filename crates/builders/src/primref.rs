@@ -157,8 +157,8 @@ pub(crate) fn make_refs<R: Ref>(boxes: &[Aabb], centers: &[Vec3]) -> (Vec<R>, Ra
 }
 
 /// Hoare-style in-place partition of `refs[r.begin..r.end]` (Wald 2007 via thesis 3.1.1): elements
-/// with `is_left` first. Every element is classified exactly once, and the children's bounds and
-/// centroid bounds are gathered on the way. Returns the two child ranges; either may be empty.
+/// with `is_left` first ([`hoare_blocks`]), then the children's bounds and centroid bounds.
+/// Returns the two child ranges; either may be empty.
 #[inline]
 pub(crate) fn partition<R: Ref>(
     refs: &mut [R],
@@ -166,34 +166,17 @@ pub(crate) fn partition<R: Ref>(
     is_left: impl Fn(&R) -> bool,
 ) -> (Range, Range) {
     let s = &mut refs[r.begin..r.end];
-    let (mut lb, mut lcb, mut rb, mut rcb) = (BoxA::EMPTY, BoxA::EMPTY, BoxA::EMPTY, BoxA::EMPTY);
-    let mut i = 0;
-    let mut j = s.len();
-    loop {
-        while i < j && is_left(&s[i]) {
-            lb.grow(s[i].min(), s[i].max());
-            lcb.grow_point(s[i].c());
-            i += 1;
-        }
-        while i < j && !is_left(&s[j - 1]) {
-            rb.grow(s[j - 1].min(), s[j - 1].max());
-            rcb.grow_point(s[j - 1].c());
-            j -= 1;
-        }
-        if i >= j {
-            break;
-        }
-        // s[i] belongs right, s[j-1] left: swap them into place.
-        s.swap(i, j - 1);
-        lb.grow(s[i].min(), s[i].max());
-        lcb.grow_point(s[i].c());
-        rb.grow(s[j - 1].min(), s[j - 1].max());
-        rcb.grow_point(s[j - 1].c());
-        i += 1;
-        j -= 1;
-    }
-    let mid = r.begin + i;
-    r.split(mid, (lb, lcb), (rb, rcb))
+    let mid = hoare_blocks(s, &is_left);
+    // Each side's bounds in a pass of their own (min / max: exact in any order).
+    let bounds = |part: &[R]| {
+        part.iter().fold((BoxA::EMPTY, BoxA::EMPTY), |(mut b, mut cb), p| {
+            b.grow(p.min(), p.max());
+            cb.grow_point(p.c());
+            (b, cb)
+        })
+    };
+    let (left, right) = (bounds(&s[..mid]), bounds(&s[mid..]));
+    r.split(r.begin + mid, left, right)
 }
 
 /// [`partition`] when the children's boxes are already known (the binned SAH has them from its
@@ -219,26 +202,12 @@ pub(crate) fn partition_known_bounds<R: Ref>(
         })
     };
     let (lcb, rcb) = (cbounds(&s[..mid]), cbounds(&s[mid..]));
-    let mid = r.begin + mid;
-    (
-        Range {
-            begin: r.begin,
-            end: mid,
-            bounds: lb,
-            cbounds: lcb,
-        },
-        Range {
-            begin: mid,
-            end: r.end,
-            bounds: rb,
-            cbounds: rcb,
-        },
-    )
+    r.split(r.begin + mid, (lb, lcb), (rb, rcb))
 }
 
 /// Elements per block of [`hoare_blocks`].
 const BLOCK: usize = 128;
-const _: () = assert!(BLOCK.is_power_of_two() && BLOCK <= 256);
+const _: () = assert!(BLOCK.is_power_of_two() && 2 * BLOCK <= 256);
 
 /// Hoare's partition (elements with `is_left` first; returns how many) with the classification
 /// taken out of the branches (Edelkamp and Weiss 2016, "BlockQuicksort: avoiding branch
@@ -251,8 +220,9 @@ const _: () = assert!(BLOCK.is_power_of_two() && BLOCK <= 256);
 #[inline]
 fn hoare_blocks<R>(s: &mut [R], is_left: &impl Fn(&R) -> bool) -> usize {
     let (mut l, mut r) = (0usize, s.len());
-    // Pending offsets (from `l` / back from `r - 1`) of misplaced elements of the current blocks.
-    let (mut off_l, mut off_r) = ([0u8; BLOCK], [0u8; BLOCK]);
+    // Pending offsets (from `l` / back from `r - 1`) of misplaced elements of the current blocks;
+    // `2 * BLOCK` long for the rest below.
+    let (mut off_l, mut off_r) = ([0u8; 2 * BLOCK], [0u8; 2 * BLOCK]);
     let (mut start_l, mut num_l, mut start_r, mut num_r) = (0usize, 0usize, 0usize, 0usize);
     // Two whole blocks fit between the ends, so a swap never crosses them.
     while r - l >= 2 * BLOCK {
@@ -284,23 +254,33 @@ fn hoare_blocks<R>(s: &mut [R], is_left: &impl Fn(&R) -> bool) -> usize {
             r -= BLOCK;
         }
     }
-    // The rest (fewer than two blocks, and a block whose misplaced elements are still pending):
-    // the plain scan, which finds those same elements next.
-    let (mut i, mut j) = (l, r);
-    loop {
-        while i < j && is_left(&s[i]) {
-            i += 1;
-        }
-        while i < j && !is_left(&s[j - 1]) {
-            j -= 1;
-        }
-        if i >= j {
-            return i;
-        }
-        s.swap(i, j - 1);
-        i += 1;
-        j -= 1;
+    // The rest, fewer than two blocks (and a block whose misplaced elements were still pending:
+    // classified again, as the plain scan would find them next), also without branching (most
+    // nodes are this small): the misplaced elements from the left and the left-bound ones from the
+    // right, in Hoare's meeting order; the k-th pair is swapped while they have not crossed.
+    const MASK: usize = 2 * BLOCK - 1;
+    let rest = &mut s[l..r];
+    let mut left = [false; 2 * BLOCK];
+    let mut n_mis = 0;
+    for (i, x) in rest.iter().enumerate() {
+        let is = is_left(x);
+        left[i & MASK] = is;
+        off_l[n_mis & MASK] = i as u8;
+        n_mis += !is as usize;
     }
+    let mut n_left = 0;
+    for i in (0..rest.len()).rev() {
+        off_r[n_left & MASK] = i as u8;
+        n_left += left[i & MASK] as usize;
+    }
+    for k in 0..n_mis.min(n_left) {
+        let (a, b) = (off_l[k & MASK] as usize, off_r[k & MASK] as usize);
+        if a > b {
+            break;
+        }
+        rest.swap(a, b);
+    }
+    l + n_left
 }
 
 /// Object-median split on `axis`: the lower half by (centre, index) goes left. The index tie-break
