@@ -353,13 +353,18 @@ impl Binner {
         let k = self.k;
         let count = &self.count[axis * k..(axis + 1) * k];
         let bounds = &self.bounds[axis * k..(axis + 1) * k];
-        let nonempty = &mut self.nonempty;
-        nonempty.clear();
-        nonempty.extend((0..k as u32).filter(|&i| count[i as usize] != 0));
-        let m = nonempty.len();
+        // Gathered without a branch per bin (which bin is empty is as good as random).
+        self.nonempty.resize(k, 0);
+        let mut m = 0;
+        for (i, &c) in count.iter().enumerate() {
+            // m <= i < k.
+            self.nonempty[m] = i as u32;
+            m += (c != 0) as usize;
+        }
         if m < 2 {
             return None;
         }
+        let nonempty = &self.nonempty[..m];
         // Sweep 1, left to right: boxes and counts up to each non-empty bin.
         let la = &mut self.left_area[..m - 1];
         let lc = &mut self.left_count[..m - 1];
