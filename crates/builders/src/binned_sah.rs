@@ -154,6 +154,9 @@ fn build_refs<R: Ref>(boxes: &[Aabb], centers: &[Vec3], opts: &BinnedOptions, cf
     }
 }
 
+/// Nodes with at least this many primitives bin into two alternating sets ([`Binner::bin`]).
+const DUAL_BINS_FROM: usize = 64;
+
 /// Bin storage, allocated once per build and reused by every node.
 struct Binner {
     k: usize,
@@ -324,12 +327,41 @@ impl Binner {
     /// Bins `prims` along `axis` (eq. 6) into `self.count` / `self.bounds`.
     fn bin<R: Ref>(&mut self, prims: &[R], axis: usize, bins: &Bins) {
         let k = self.k;
-        self.count[..k].fill(0);
-        self.bounds[..k].fill(BoxA::EMPTY);
-        for p in prims {
-            let b = bin_of(p.c()[axis], bins, k);
-            self.count[b] += 1;
-            self.bounds[b].grow(p.min(), p.max());
+        if prims.len() < DUAL_BINS_FROM {
+            self.count[..k].fill(0);
+            self.bounds[..k].fill(BoxA::EMPTY);
+            for p in prims {
+                let b = bin_of(p.c()[axis], bins, k);
+                self.count[b] += 1;
+                self.bounds[b].grow(p.min(), p.max());
+            }
+            return;
+        }
+        // Two sets of bins, alternate primitives to each, then merged: neighbours in memory tend
+        // to fall in the same bin (coherent meshes, sorted scenes), and one set chains every such
+        // update on the previous one's store. The merge is exact (counts add, boxes take min / max),
+        // so the bins are the single set's. The second set is the y-axis slots, unused here.
+        self.count[..2 * k].fill(0);
+        self.bounds[..2 * k].fill(BoxA::EMPTY);
+        let (ca, cb) = self.count[..2 * k].split_at_mut(k);
+        let (ba, bb) = self.bounds[..2 * k].split_at_mut(k);
+        let mut pairs = prims.chunks_exact(2);
+        for pq in pairs.by_ref() {
+            let (p, q) = (&pq[0], &pq[1]);
+            let (i, j) = (bin_of(p.c()[axis], bins, k), bin_of(q.c()[axis], bins, k));
+            ca[i] += 1;
+            ba[i].grow(p.min(), p.max());
+            cb[j] += 1;
+            bb[j].grow(q.min(), q.max());
+        }
+        for p in pairs.remainder() {
+            let i = bin_of(p.c()[axis], bins, k);
+            ca[i] += 1;
+            ba[i].grow(p.min(), p.max());
+        }
+        for i in 0..k {
+            ca[i] += cb[i];
+            ba[i] = ba[i].union(&bb[i]);
         }
     }
 
