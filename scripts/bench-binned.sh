@@ -10,6 +10,13 @@
 # the table shows the median over the rounds, the SAH cost, and the ratio to BuildAVX with the goal
 # (time <= 1.00x at SAH <= BuildAVX's + 1 %). `uptime` is printed before and after: others' load skews
 # both sides, which is why only same-run ratios count.
+#
+# ../shared/tools/tinybvh-anchor is not single-threaded: tinybvh builds scenes of 50k+ triangles with its
+# job system (MT_BUILD_THRESHOLD; measured: up to 60 threads and both cores busy during its builds). Where
+# tiny_bvh.h is found (TINYBVH_H, or the tinybvh-rs crate's copy in the cargo registry) and g++ is there,
+# the script also builds the same anchor source with -DNO_THREADED_BUILDS (same trees, same SAH) into the
+# target dir and times it in the same rounds: the 1-thread verdict is against that build, and bvhlab's
+# parallel build on 2 threads (binned-sah-par) is put beside the threaded anchor.
 set -euo pipefail
 repo=$(cd "$(dirname "$0")/.." && pwd)
 shared="$repo/../shared"
@@ -26,6 +33,21 @@ scenes=("$@")
 # NO_BUILD=1 uses the build_bench binary as it is (e.g. while another cargo command holds the target dir).
 [[ -n "${NO_BUILD:-}" ]] || cargo build --quiet --release -p bvhlab-builders --example build_bench --manifest-path "$repo/Cargo.toml"
 
+# The single-thread anchor (see above), if it can be built here.
+anchor1=""
+header=${TINYBVH_H:-$(ls ~/.cargo/registry/src/*/tinybvh-rs-*/ffi/tinybvh/tiny_bvh.h 2>/dev/null | head -1)}
+if [[ -n "$header" && -f "$header" ]] && command -v g++ >/dev/null; then
+  dir="$CARGO_TARGET_DIR/anchors"
+  anchor1="$dir/tinybvh-anchor-1t"
+  if [[ ! -x "$anchor1" || "$shared/tools/tinybvh_anchor.cpp" -nt "$anchor1" ]]; then
+    mkdir -p "$dir" && cp "$header" "$dir/tiny_bvh.h" && cp "$shared/tools/tinybvh_anchor.cpp" "$dir/"
+    g++ -O3 -march=x86-64-v3 -std=c++17 -DNO_THREADED_BUILDS "$dir/tinybvh_anchor.cpp" -o "$anchor1" -lpthread \
+      || { echo "could not build the single-thread anchor" >&2; anchor1=""; }
+  fi
+else
+  echo "note: tiny_bvh.h or g++ not found: only the threaded anchor (set TINYBVH_H=path/to/tiny_bvh.h)" >&2
+fi
+
 field() { sed -n "s/.*\"$2\":\([-0-9.eE+]*\).*/\1/p" <<<"$1"; }
 part() { sed -n "s/.*\"$2\":{\([^}]*\)}.*/\1/p" <<<"$1"; }
 med() { sort -g | awk '{a[NR]=$1} END {if (NR == 0) print ""; else if (NR % 2) print a[(NR+1)/2]; else printf "%.2f\n", (a[NR/2]+a[NR/2+1])/2}'; }
@@ -33,7 +55,7 @@ med() { sort -g | awk '{a[NR]=$1} END {if (NR == 0) print ""; else if (NR % 2) p
 echo "load before: $(uptime)"
 for scene in "${scenes[@]}"; do
   declare -A ms=() sah=()
-  avx_ms=() avx_sah=""
+  avx_ms=() avx_sah="" avx1_ms=() par2_ms=()
   for ((r = 0; r < rounds; r++)); do
     out=$("$bench" "$scene" "$runs" 1 "$variants")
     while IFS= read -r line; do
@@ -46,18 +68,30 @@ for scene in "${scenes[@]}"; do
     avx=$(part "$a" binned_sah_avx)
     avx_ms+=("$(field "$avx" build_ms_median)")
     avx_sah=$(field "$avx" sah_cost)
+    if [[ -n "$anchor1" ]]; then
+      avx1_ms+=("$(field "$(part "$("$anchor1" "$scene" "$runs")" binned_sah_avx)" build_ms_median)")
+      par2_ms+=("$(field "$("$bench" "$scene" "$runs" 2 binned-sah-par)" build_ms_median)")
+    fi
   done
   t_avx=$(printf '%s\n' "${avx_ms[@]}" | med)
+  # The 1-thread verdict's reference: the single-thread build where there is one.
+  t_ref=$t_avx ref="threaded anchor"
   echo
-  echo "$(basename "$scene"), 1 thread, $rounds rounds x $runs runs; tinybvh BuildAVX ${t_avx} ms (rounds: ${avx_ms[*]}), SAH $avx_sah"
-  printf '%-32s %9s %-26s %9s %8s %9s %s\n' variant ms rounds sah_cost ratio sah_vs verdict
+  echo "$(basename "$scene"), $rounds rounds x $runs runs; tinybvh BuildAVX ${t_avx} ms as ../shared/tools builds it (threaded; rounds: ${avx_ms[*]}), SAH $avx_sah"
+  if [[ -n "$anchor1" ]]; then
+    t_ref=$(printf '%s\n' "${avx1_ms[@]}" | med) ref="BuildAVX 1 thread"
+    t_par=$(printf '%s\n' "${par2_ms[@]}" | med)
+    echo "tinybvh BuildAVX 1 thread (-DNO_THREADED_BUILDS): ${t_ref} ms (rounds: ${avx1_ms[*]}); bvhlab binned-sah-par on 2 threads: ${t_par} ms (rounds: ${par2_ms[*]}) = $(awk -v a="$t_par" -v b="$t_avx" 'BEGIN { printf "%.2f", a / b }')x the threaded anchor"
+  fi
+  printf '%-32s %9s %-26s %9s %10s %10s %9s %s\n' "variant (1 thread)" ms rounds sah_cost "vs 1-thr" "vs thread" sah_vs "verdict (vs $ref)"
   IFS=, read -ra names <<<"$variants"
   for name in "${names[@]}"; do
     t=$(tr ' ' '\n' <<<"${ms[$name]}" | grep . | med)
-    ratio=$(awk -v a="$t" -v b="$t_avx" 'BEGIN { printf "%.2f", a / b }')
+    ratio=$(awk -v a="$t" -v b="$t_ref" 'BEGIN { printf "%.2f", a / b }')
+    ratio_mt=$(awk -v a="$t" -v b="$t_avx" 'BEGIN { printf "%.2f", a / b }')
     rel=$(awk -v a="${sah[$name]}" -v b="$avx_sah" 'BEGIN { printf "%+.1f%%", (a / b - 1) * 100 }')
     ok=$(awk -v r="$ratio" -v a="${sah[$name]}" -v b="$avx_sah" 'BEGIN { print (r <= 1.0 && a <= b * 1.01) ? "PASS" : "MISS" }')
-    printf '%-32s %9s %-26s %9s %8s %9s %s\n' "$name" "$t" "$(echo ${ms[$name]})" "${sah[$name]}" "${ratio}x" "$rel" "$ok"
+    printf '%-32s %9s %-26s %9s %10s %10s %9s %s\n' "$name" "$t" "$(echo ${ms[$name]})" "${sah[$name]}" "${ratio}x" "${ratio_mt}x" "$rel" "$ok"
   done
   unset ms sah
 done
