@@ -74,7 +74,8 @@ bench-trace RUNS="3" *SCENES="":
     # AXES=all: the binary tree of tinybvh's BVH8_CPU (8 bins on all axes) instead of the thesis' binned SAH.
     cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --tools ../shared/tools --axes "${AXES:-largest}" $scenes
 
-# issue 19.4: binned SAH (thesis and all-axes configurations) against tinybvh's BuildAVX, 1 thread, alternated.
+# issue 19.4: binned SAH (thesis and all-axes configurations) against tinybvh's BuildAVX, alternated: 1 thread against
+# the anchor built single-threaded (where tiny_bvh.h is found), 2 threads against the shared (threaded) anchor.
 bench-binned RUNS="5" ROUNDS="3":
     bash scripts/bench-binned.sh {{RUNS}} {{ROUNDS}}
 
