@@ -35,17 +35,21 @@ scenes=("$@")
 
 # The single-thread anchor (see above), if it can be built here.
 anchor1=""
-header=${TINYBVH_H:-$(ls ~/.cargo/registry/src/*/tinybvh-rs-*/ffi/tinybvh/tiny_bvh.h 2>/dev/null | head -1)}
-if [[ -n "$header" && -f "$header" ]] && command -v g++ >/dev/null; then
+header=${TINYBVH_H:-$( { ls "${CARGO_HOME:-$HOME/.cargo}"/registry/src/*/tinybvh-rs-*/ffi/tinybvh/tiny_bvh.h 2>/dev/null || true; } | head -1)}
+if [[ -n "$header" && -f "$header" && -f "$shared/tools/tinybvh_anchor.cpp" ]] && command -v g++ >/dev/null; then
   dir="$CARGO_TARGET_DIR/anchors"
   anchor1="$dir/tinybvh-anchor-1t"
-  if [[ ! -x "$anchor1" || "$shared/tools/tinybvh_anchor.cpp" -nt "$anchor1" ]]; then
-    mkdir -p "$dir" && cp "$header" "$dir/tiny_bvh.h" && cp "$shared/tools/tinybvh_anchor.cpp" "$dir/"
-    g++ -O3 -march=x86-64-v3 -std=c++17 -DNO_THREADED_BUILDS "$dir/tinybvh_anchor.cpp" -o "$anchor1" -lpthread \
-      || { echo "could not build the single-thread anchor" >&2; anchor1=""; }
+  # Rebuilt when the anchor source or the header is newer, or the header is another file.
+  if [[ ! -x "$anchor1" || "$shared/tools/tinybvh_anchor.cpp" -nt "$anchor1" || "$header" -nt "$anchor1" ]] \
+     || ! cmp -s "$header" "$dir/tiny_bvh.h"; then
+    if ! { mkdir -p "$dir" && cp "$header" "$dir/tiny_bvh.h" && cp "$shared/tools/tinybvh_anchor.cpp" "$dir/" \
+         && g++ -O3 -march=x86-64-v3 -std=c++17 -DNO_THREADED_BUILDS "$dir/tinybvh_anchor.cpp" -o "$anchor1" -lpthread; }; then
+      echo "note: could not build the single-thread anchor: only the threaded one" >&2
+      anchor1=""
+    fi
   fi
 else
-  echo "note: tiny_bvh.h or g++ not found: only the threaded anchor (set TINYBVH_H=path/to/tiny_bvh.h)" >&2
+  echo "note: tiny_bvh.h, g++ or the anchor source not found: only the threaded anchor (set TINYBVH_H=path/to/tiny_bvh.h)" >&2
 fi
 
 field() { sed -n "s/.*\"$2\":\([-0-9.eE+]*\).*/\1/p" <<<"$1"; }
@@ -55,7 +59,7 @@ med() { sort -g | awk '{a[NR]=$1} END {if (NR == 0) print ""; else if (NR % 2) p
 echo "load before: $(uptime)"
 for scene in "${scenes[@]}"; do
   declare -A ms=() sah=()
-  avx_ms=() avx_sah="" avx1_ms=() par2_ms=()
+  avx_ms=() avx_sah="" avx1_ms=() avx1_sah="" par2_ms=()
   for ((r = 0; r < rounds; r++)); do
     out=$("$bench" "$scene" "$runs" 1 "$variants")
     while IFS= read -r line; do
@@ -69,7 +73,9 @@ for scene in "${scenes[@]}"; do
     avx_ms+=("$(field "$avx" build_ms_median)")
     avx_sah=$(field "$avx" sah_cost)
     if [[ -n "$anchor1" ]]; then
-      avx1_ms+=("$(field "$(part "$("$anchor1" "$scene" "$runs")" binned_sah_avx)" build_ms_median)")
+      avx1=$(part "$("$anchor1" "$scene" "$runs" || true)" binned_sah_avx)
+      avx1_ms+=("$(field "$avx1" build_ms_median)")
+      avx1_sah=$(field "$avx1" sah_cost)
       par2_ms+=("$(field "$("$bench" "$scene" "$runs" 2 binned-sah-par)" build_ms_median)")
     fi
   done
@@ -78,12 +84,17 @@ for scene in "${scenes[@]}"; do
   t_ref=$t_avx ref="threaded anchor"
   echo
   echo "$(basename "$scene"), $rounds rounds x $runs runs; tinybvh BuildAVX ${t_avx} ms as ../shared/tools builds it (threaded; rounds: ${avx_ms[*]}), SAH $avx_sah"
-  if [[ -n "$anchor1" ]]; then
-    t_ref=$(printf '%s\n' "${avx1_ms[@]}" | med) ref="BuildAVX 1 thread"
+  t1=$( { printf '%s\n' "${avx1_ms[@]}" | grep . || true; } | med)
+  if [[ -n "$anchor1" && -n "$t1" ]]; then
+    t_ref=$t1 ref="BuildAVX 1 thread"
+    # The single-thread build must be the same tree (its header may be another tinybvh version).
+    [[ "$avx1_sah" == "$avx_sah" ]] || echo "warning: the 1-thread anchor's SAH $avx1_sah differs from the threaded anchor's $avx_sah" >&2
     t_par=$(printf '%s\n' "${par2_ms[@]}" | med)
     echo "tinybvh BuildAVX 1 thread (-DNO_THREADED_BUILDS): ${t_ref} ms (rounds: ${avx1_ms[*]}); bvhlab binned-sah-par on 2 threads: ${t_par} ms (rounds: ${par2_ms[*]}) = $(awk -v a="$t_par" -v b="$t_avx" 'BEGIN { printf "%.2f", a / b }')x the threaded anchor"
   fi
-  printf '%-32s %9s %-26s %9s %10s %10s %9s %s\n' "variant (1 thread)" ms rounds sah_cost "vs 1-thr" "vs thread" sah_vs "verdict (vs $ref)"
+  col1="vs 1-thr"
+  [[ "$t_ref" == "$t_avx" ]] && col1="vs thread"
+  printf '%-32s %9s %-26s %9s %10s %10s %9s %s\n' "variant (1 thread)" ms rounds sah_cost "$col1" "vs thread" sah_vs "verdict (vs $ref)"
   IFS=, read -ra names <<<"$variants"
   for name in "${names[@]}"; do
     t=$(tr ' ' '\n' <<<"${ms[$name]}" | grep . | med)

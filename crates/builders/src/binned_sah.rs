@@ -161,7 +161,7 @@ const DUAL_BINS_FROM: usize = 64;
 struct Binner {
     k: usize,
     /// Counts and boxes of the bins, `k` per axis (`axis * k + bin`); the largest-axis build uses
-    /// the first `k`.
+    /// the first `k` (and the next `k` as scratch: the second of `bin`'s alternating sets).
     count: Vec<u32>,
     bounds: Vec<BoxA>,
     /// Left-sweep results: half area and count of bins `0..=i`.

@@ -23,8 +23,9 @@ pub fn collapse(bvh: &Bvh, cost: CostParams) -> Bvh {
     // Post-order over an explicit stack (children's indices need not exceed their parent's); a
     // finished subtree's cost, primitive count and (repeated references) distinct triangles wait
     // on a value stack for its parent, so the only per-node array is the decision: the work memory
-    // is a byte per node, not the 17 of per-node costs, counts and order (the peak of the
-    // Morton builders, which collapse a tree of single-triangle leaves: issue 19.4).
+    // is a byte per node plus two stacks as deep as the tree, not the 17 bytes per node of
+    // per-node costs, counts and order (the peak of the Morton builders, which collapse a tree of
+    // single-triangle leaves: issue 19.4).
     let mut make_leaf = vec![false; n];
     let mut todo = vec![(0u32, false)];
     let mut vals: Vec<(f64, u32, Option<Vec<u32>>)> = Vec::new();

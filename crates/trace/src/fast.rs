@@ -533,8 +533,9 @@ impl BoxTest for RayBox {
 pub struct FastBvh2<'a> {
     nodes: &'a [Node],
     store: TriStore,
-    /// The inner nodes as child pairs (the timed path's layout), unless the root is a leaf or the
-    /// tree is malformed.
+    /// The inner nodes as child pairs (the timed path's layout, x86-64 only: an SSE test), unless
+    /// the root is a leaf or the tree is malformed.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     pairs: Option<Pairs>,
 }
 
@@ -544,13 +545,14 @@ impl<'a> FastBvh2<'a> {
         FastBvh2 {
             nodes: &bvh.nodes,
             store: TriStore::new(&bvh.prim_indices, tris),
-            pairs: Pairs::new(&bvh.nodes),
+            pairs: if cfg!(target_arch = "x86_64") { Pairs::new(&bvh.nodes) } else { None },
         }
     }
 
     /// Closest hits with the watertight f32 test, no counters: the timed path. Rays with a finite
-    /// inverse direction traverse the child pairs ([`crate::pairs`]), the others (and every ray
-    /// of a tree without pairs) the flat nodes; the same hits either way.
+    /// origin and direction and no zero direction component traverse the child pairs
+    /// ([`crate::pairs`]), the others (and every ray of a tree without pairs) the flat nodes; the
+    /// same hits either way.
     pub fn hits(&self, rays: &[Ray]) -> Vec<Hit> {
         #[cfg(target_arch = "x86_64")]
         if let Some(p) = &self.pairs {
@@ -563,7 +565,10 @@ impl<'a> FastBvh2<'a> {
                     |(flat, paired), (h, r)| {
                         for (h, ray) in h.iter_mut().zip(r) {
                             let sr = SlabRay::new(ray);
-                            *h = if sr.parallel {
+                            // Non-finite origins or directions can make a product NaN, where
+                            // the pairs' min / max and the flat test's plane choice differ.
+                            let finite = ray.origin.is_finite() && ray.dir.is_finite();
+                            *h = if sr.parallel || !finite {
                                 self.one::<Watertight, false>(ray, flat).0
                             } else if ray.tmax.is_nan()
                                 || ray.tmax <= 0.0
@@ -573,7 +578,7 @@ impl<'a> FastBvh2<'a> {
                                 Hit::NONE
                             } else {
                                 pairs_one::<Watertight>(
-                                    p.pairs(),
+                                    p,
                                     &self.store.tris,
                                     ray,
                                     sr.inv,

@@ -25,16 +25,19 @@ pub struct Pair {
 
 const _: () = assert!(std::mem::size_of::<Pair>() == 64);
 
-/// A binary BVH as [`Pair`]s, pair 0 holding the root's children, in depth-first order (a
-/// subtree's pairs are contiguous, as the flat layout's nodes are).
-#[derive(Clone, Debug, Default, PartialEq)]
+/// A binary BVH as [`Pair`]s, pair 0 holding the root's children; depth first, left subtree
+/// first, a pair's two inner children's pairs allocated together (as the flat layout's siblings).
+/// Never empty: built only by [`Pairs::new`], which the traversal's unchecked indexing relies on.
+#[derive(Clone, Debug, PartialEq)]
 pub struct Pairs {
     /// Private: the traversal follows the indices unchecked, trusting `Pairs::new`.
     pairs: Vec<Pair>,
 }
 
 impl Pairs {
-    /// None for a tree whose root is a leaf (nothing to pair) or that is malformed.
+    /// None for a tree whose root is a leaf (nothing to pair) or that is malformed: an index out of
+    /// range, a node reached twice, or a child box that is empty or inverted on some axis (the
+    /// flat test always misses such a box, the pair test's min / max of the two planes would not).
     pub fn new(nodes: &[Node]) -> Option<Pairs> {
         let root = nodes.first()?;
         if root.is_leaf() {
@@ -57,6 +60,9 @@ impl Pairs {
                     return None;
                 }
                 let b = node.bounds;
+                if !(b.min.x <= b.max.x && b.min.y <= b.max.y && b.min.z <= b.max.z) {
+                    return None;
+                }
                 for (a, (lo, hi)) in [(b.min.x, b.max.x), (b.min.y, b.max.y), (b.min.z, b.max.z)]
                     .into_iter()
                     .enumerate()
@@ -85,23 +91,24 @@ impl Pairs {
     }
 }
 
-/// Closest hit of one ray with a finite inverse direction (no zero component; the caller routes
-/// other rays through the flat traversal), the root's box `root` already entered. Same hits as
-/// the flat traversal with `T`: the same boxes with the same products (the near and far planes
-/// taken by min and max of the two products instead of by the direction's sign, which for finite
-/// products is the same pair of values), the same culling margin and [`crate::accept`]'s order-free
-/// choice between equal distances. Leaves of four or more triangles go through `T::test_leaf` (four
+/// Closest hit of one ray whose origin and direction are finite with no zero direction component
+/// (the caller routes every other ray through the flat traversal), the root's box already
+/// entered. Same hits as the flat traversal with `T`: the same boxes with the same products (the
+/// near and far planes taken by min and max of the two products instead of by the direction's
+/// sign, which for finite products and non-inverted boxes is the same pair of values), the same
+/// culling margin and [`crate::accept`]'s order-free choice between equal distances. Leaves of four or more triangles go through `T::test_leaf` (four
 /// at once), smaller ones one triangle at a time inline (a call per leaf cost more than it saved).
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn pairs_one<T: TriTest>(
-    pairs: &[Pair],
+    pairs: &Pairs,
     tris: &[WTri],
     ray: &Ray,
     inv: [f32; 3],
     stack: &mut Stack<(u32, u32, f32)>,
 ) -> Hit {
     use std::arch::x86_64::*;
+    let pairs = &pairs.pairs[..];
     let mut best = Hit::within(ray.tmax);
     let mut tr: Option<T::Ray> = None;
     stack.clear();

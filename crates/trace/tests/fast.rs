@@ -324,4 +324,23 @@ fn child_pairs_hold_every_child_once() {
         f.hits_flat(&rays),
         "without pairs the flat traversal serves every ray"
     );
+    // An inverted child box (which the flat test always misses): no pairs either.
+    let mut inverted = median_bvh(&tris, 2);
+    let c = inverted.nodes[0].first as usize;
+    let b = &mut inverted.nodes[c].bounds;
+    std::mem::swap(&mut b.min.y, &mut b.max.y);
+    assert!(Pairs::new(&inverted.nodes).is_none());
+    // Rays with infinite or NaN origins and directions get the flat traversal's hits.
+    let good = median_bvh(&tris, 2);
+    let f = FastBvh2::new(&good, &tris);
+    let mut odd = rays[..200].to_vec();
+    for (i, r) in odd.iter_mut().enumerate() {
+        match i % 4 {
+            0 => r.dir.x = f32::INFINITY,
+            1 => r.origin.y = f32::NEG_INFINITY,
+            2 => r.dir.z = f32::NAN,
+            _ => r.dir *= 1e30,
+        }
+    }
+    assert_eq!(f.hits(&odd), f.hits_flat(&odd));
 }
