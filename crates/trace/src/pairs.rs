@@ -96,8 +96,9 @@ impl Pairs {
 /// entered. Same hits as the flat traversal with `T`: the same boxes with the same products (the
 /// near and far planes taken by min and max of the two products instead of by the direction's
 /// sign, which for finite products and non-inverted boxes is the same pair of values), the same
-/// culling margin and [`crate::accept`]'s order-free choice between equal distances. Leaves of four or more triangles go through `T::test_leaf` (four
-/// at once), smaller ones one triangle at a time inline (a call per leaf cost more than it saved).
+/// culling margin and [`crate::accept`]'s order-free choice between equal distances. Leaves of
+/// four or more triangles go through `T::test_leaf` (four at once), smaller ones one triangle at a
+/// time inline (a call per leaf cost more than it saved).
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn pairs_one<T: TriTest>(
