@@ -105,6 +105,15 @@ pub trait TriTest: Sync {
     fn test_leaf(r: &Self::Ray, tris: &[WTri], best: &mut Hit) -> u32 {
         Exact::test_leaf_with(r, tris, best, Self::test)
     }
+    /// [`Self::test_leaf`] compiled for AVX2 where a test has such a build (the same values: the
+    /// same operations in the same order, only VEX-encoded, so no register copies; no FMA).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 (callers check it once per trace, `is_x86_feature_detected`).
+    #[inline(always)]
+    unsafe fn test_leaf_avx2(r: &Self::Ray, tris: &[WTri], best: &mut Hit) -> u32 {
+        Self::test_leaf(r, tris, best)
+    }
 }
 
 /// The reference: [`intersect_triangle`] in f64, bit-identical to brute force.
@@ -255,31 +264,72 @@ impl TriTest for Watertight {
     #[inline(always)]
     fn test_leaf(r: &WoopRay, tris: &[WTri], best: &mut Hit) -> u32 {
         #[cfg(target_arch = "x86_64")]
-        {
-            // One instance per axis order of the ray (Woop et al. 2013: kz its largest direction
-            // component, kx and ky the others, swapped when that component is negative; all six
-            // orders occur): with the order a constant, the four-wide test picks its columns from
-            // registers instead of indexing an array of them through the stack (measured: the
-            // spills and a failed store-to-load forwarding were the leaf test's hottest spots).
-            match r.k {
-                [0, 1, 2] => leaf4::<0, 1, 2>(r, tris, best),
-                [1, 0, 2] => leaf4::<1, 0, 2>(r, tris, best),
-                [1, 2, 0] => leaf4::<1, 2, 0>(r, tris, best),
-                [2, 1, 0] => leaf4::<2, 1, 0>(r, tris, best),
-                [2, 0, 1] => leaf4::<2, 0, 1>(r, tris, best),
-                [0, 2, 1] => leaf4::<0, 2, 1>(r, tris, best),
-                _ => Exact::test_leaf_with(r, tris, best, intersect_watertight),
-            }
-        }
+        return by_axis_order!(leaf4, r, tris, best);
+        #[cfg(not(target_arch = "x86_64"))]
+        Exact::test_leaf_with(r, tris, best, intersect_watertight)
+    }
+    #[inline(always)]
+    unsafe fn test_leaf_avx2(r: &WoopRay, tris: &[WTri], best: &mut Hit) -> u32 {
+        // SAFETY: the caller guarantees AVX2.
+        #[cfg(target_arch = "x86_64")]
+        return unsafe { by_axis_order!(leaf4_avx2, r, tris, best) };
         #[cfg(not(target_arch = "x86_64"))]
         Exact::test_leaf_with(r, tris, best, intersect_watertight)
     }
 }
 
+/// Calls the instance of leaf test `$f` for the ray's axis order (Woop et al. 2013: kz its largest
+/// direction component, kx and ky the others, swapped when that component is negative; all six
+/// orders occur): with the order a constant, the four-wide test picks its columns from registers
+/// instead of indexing an array of them through the stack (measured: the spills and a failed
+/// store-to-load forwarding were the leaf test's hottest spots).
+#[cfg(target_arch = "x86_64")]
+macro_rules! by_axis_order {
+    ($f:ident, $r:expr, $tris:expr, $best:expr) => {
+        match $r.k {
+            [0, 1, 2] => $f::<0, 1, 2>($r, $tris, $best),
+            [1, 0, 2] => $f::<1, 0, 2>($r, $tris, $best),
+            [1, 2, 0] => $f::<1, 2, 0>($r, $tris, $best),
+            [2, 1, 0] => $f::<2, 1, 0>($r, $tris, $best),
+            [2, 0, 1] => $f::<2, 0, 1>($r, $tris, $best),
+            [0, 2, 1] => $f::<0, 2, 1>($r, $tris, $best),
+            _ => Exact::test_leaf_with($r, $tris, $best, intersect_watertight),
+        }
+    };
+}
+#[cfg(target_arch = "x86_64")]
+use by_axis_order;
+
 /// [`Watertight::test_leaf`] for a ray whose axis order `r.k` is `[KX, KY, KZ]`.
 #[cfg(target_arch = "x86_64")]
 #[inline(never)]
 fn leaf4<const KX: usize, const KY: usize, const KZ: usize>(
+    r: &WoopRay,
+    tris: &[WTri],
+    best: &mut Hit,
+) -> u32 {
+    leaf4_body::<KX, KY, KZ>(r, tris, best)
+}
+
+/// [`leaf4`] compiled for AVX2 (the wide traversals' AVX2 path): three-operand instructions
+/// instead of SSE's register copies, the same operations otherwise (no FMA), so the same hits.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(never)]
+#[target_feature(enable = "avx2")]
+unsafe fn leaf4_avx2<const KX: usize, const KY: usize, const KZ: usize>(
+    r: &WoopRay,
+    tris: &[WTri],
+    best: &mut Hit,
+) -> u32 {
+    leaf4_body::<KX, KY, KZ>(r, tris, best)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn leaf4_body<const KX: usize, const KY: usize, const KZ: usize>(
     r: &WoopRay,
     tris: &[WTri],
     best: &mut Hit,

@@ -435,3 +435,40 @@ pub fn brute_force(tris: &[Triangle], rays: &[Ray]) -> Vec<Hit> {
         .map(|r| brute_force_one(tris, r))
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The stack is a LIFO across the array / spill boundary: random pushes and pops (runs longer
+    /// than the array, so entries spill and come back several times) match a plain vector.
+    #[test]
+    fn stack_is_lifo_across_spills() {
+        let mut s: Stack<(u32, f32)> = Stack::new();
+        let mut model: Vec<(u32, f32)> = Vec::new();
+        let mut x = 12345u64;
+        let mut next = 0u32;
+        for _ in 0..20_000 {
+            x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            // Pushes win 55 % of steps in phases: the depth wanders far past STACK_SIZE and back.
+            let phase = (next / 3000) % 2 == 0;
+            let push = ((x >> 33) % 100) < if phase { 70 } else { 35 };
+            if push {
+                let e = (next, next as f32);
+                next += 1;
+                s.push(e);
+                model.push(e);
+            } else {
+                assert_eq!(s.pop(), model.pop());
+            }
+        }
+        assert!(next > 3 * STACK_SIZE as u32);
+        while let Some(e) = model.pop() {
+            assert_eq!(s.pop(), Some(e));
+        }
+        assert_eq!(s.pop(), None);
+        s.push((1, 1.0));
+        s.clear();
+        assert_eq!(s.pop(), None);
+    }
+}
