@@ -4,7 +4,8 @@
 #
 # Usage: scripts/bench-binned.sh [runs=5] [rounds=3] [VARIANTS] [SCENES...]
 #   VARIANTS: comma-separated build_bench names (default: the thesis configuration `binned-sah`
-#   and the all-axes ones `binned-sah:axes=all:bins=8`, `binned-sah:axes=all`).
+#   (16 bins), the same with 32 bins, and the all-axes ones `binned-sah:axes=all:bins=8`,
+#   `binned-sah:axes=all`).
 #   SCENES: default stanford_dragon and conference from ../shared/scenes.
 # Each round runs every variant `runs` times (its median) and then the anchor `runs` times (its medians);
 # the table shows the median over the rounds, the SAH cost, and the ratio to BuildAVX with the goal
@@ -25,7 +26,7 @@ export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$repo/target}
 bench="$CARGO_TARGET_DIR/release/examples/build_bench"
 runs=${1:-5}
 rounds=${2:-3}
-variants=${3:-binned-sah,binned-sah:axes=all:bins=8,binned-sah:axes=all}
+variants=${3:-binned-sah,binned-sah:bins=32,binned-sah:axes=all:bins=8,binned-sah:axes=all}
 shift $(( $# < 3 ? $# : 3 ))
 scenes=("$@")
 [[ ${#scenes[@]} -gt 0 ]] || scenes=("$shared/scenes/stanford_dragon.obj.gz" "$shared/scenes/conference.obj.gz")
@@ -35,7 +36,18 @@ scenes=("$@")
 
 # The single-thread anchor (see above), if it can be built here.
 anchor1=""
-header=${TINYBVH_H:-$( { ls "${CARGO_HOME:-$HOME/.cargo}"/registry/src/*/tinybvh-rs-*/ffi/tinybvh/tiny_bvh.h 2>/dev/null || true; } | head -1)}
+find_header() { { ls "${CARGO_HOME:-$HOME/.cargo}"/registry/src/*/tinybvh-rs-*/ffi/tinybvh/tiny_bvh.h 2>/dev/null || true; } | head -1; }
+header=${TINYBVH_H:-$(find_header)}
+if [[ -z "$header" ]]; then
+  # A fresh machine: put the tinybvh-rs crate (its tiny_bvh.h 1.6.8) into the cargo registry
+  # through a throwaway manifest (crates.io is reachable where the build's own crates are).
+  tmp=$(mktemp -d)
+  mkdir -p "$tmp/src" && echo 'fn main() {}' >"$tmp/src/main.rs"
+  printf '[package]\nname = "fetch-tinybvh"\nversion = "0.0.0"\nedition = "2021"\n[dependencies]\ntinybvh-rs = "=0.1.0-beta.3"\n' >"$tmp/Cargo.toml"
+  (cd "$tmp" && cargo fetch --quiet) >/dev/null 2>&1 || echo "note: could not fetch tinybvh-rs for tiny_bvh.h" >&2
+  rm -rf "$tmp"
+  header=$(find_header)
+fi
 if [[ -n "$header" && -f "$header" && -f "$shared/tools/tinybvh_anchor.cpp" ]] && command -v g++ >/dev/null; then
   dir="$CARGO_TARGET_DIR/anchors"
   anchor1="$dir/tinybvh-anchor-1t"
