@@ -25,8 +25,17 @@ fn main() {
             println!("cargo:rustc-link-lib=dylib=embree3");
             println!("cargo:rustc-cfg=has_embree");
         }
-        None => println!(
-            "cargo:warning=Embree 3 not found (libembree3.so): the embree-* methods are disabled; run scripts/setup.sh (installs libembree-dev) and rebuild"
-        ),
+        None => {
+            println!(
+                "cargo:warning=Embree 3 not found (libembree3.so): the embree-* methods are disabled; run scripts/setup.sh (installs libembree-dev) and rebuild"
+            );
+            // Run this script again on every build until Embree is found: a path that never
+            // exists keeps it stale. The installed files keep their package's old mtimes, so
+            // `rerun-if-changed` on them did not notice an installation after a first build (seen:
+            // Embree stayed disabled after scripts/setup.sh until `cargo clean`).
+            if let Some(out) = std::env::var_os("OUT_DIR") {
+                println!("cargo:rerun-if-changed={}", Path::new(&out).join("embree-not-found").display());
+            }
+        }
     }
 }

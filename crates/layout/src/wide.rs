@@ -878,6 +878,7 @@ impl<N> View<'_, N> {
                     unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(o) as *const i8) };
                     o += 64;
                 }
+                // SAFETY: as above.
                 unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(bytes - 1) as *const i8) };
             }
         }
