@@ -7,7 +7,6 @@ use std::path::Path;
 fn main() {
     println!("cargo:rustc-check-cfg=cfg(has_embree)");
     println!("cargo:rerun-if-env-changed=EMBREE_DIR");
-    println!("cargo:rerun-if-changed=/usr/include/embree3/rtcore_config.h");
     if std::env::var_os("CARGO_FEATURE_EMBREE").is_none() {
         return;
     }
@@ -21,6 +20,8 @@ fn main() {
     // The development symlink comes with libembree-dev (as do the headers the C API follows).
     match dirs.iter().find(|d| Path::new(&format!("{d}/libembree3.so")).exists()) {
         Some(d) => {
+            // An upgrade or removal of the library reruns this script.
+            println!("cargo:rerun-if-changed={d}/libembree3.so");
             println!("cargo:rustc-link-search=native={d}");
             println!("cargo:rustc-link-lib=dylib=embree3");
             println!("cargo:rustc-cfg=has_embree");
@@ -29,11 +30,16 @@ fn main() {
             println!(
                 "cargo:warning=Embree 3 not found (libembree3.so): the embree-* methods are disabled; run scripts/setup.sh (installs libembree-dev) and rebuild"
             );
-            // Run this script again on every build until Embree is found: a path that never
-            // exists keeps it stale. The installed files keep their package's old mtimes, so
-            // `rerun-if-changed` on them did not notice an installation after a first build (seen:
-            // Embree stayed disabled after scripts/setup.sh until `cargo clean`).
-            if let Some(out) = std::env::var_os("OUT_DIR") {
+            // Notice a later installation. Its files keep the package's old mtimes, so
+            // `rerun-if-changed` on them does not (seen: Embree stayed disabled after
+            // scripts/setup.sh until `cargo clean`); the package database changes on every
+            // installation, so it is the file to watch where there is one. Elsewhere a path that
+            // never exists keeps this script stale (rerun, and this crate rebuilt, on every build
+            // until Embree is found; EMBREE_DIR changes rerun it too).
+            let dpkg = Path::new("/var/lib/dpkg/status");
+            if dpkg.exists() {
+                println!("cargo:rerun-if-changed={}", dpkg.display());
+            } else if let Some(out) = std::env::var_os("OUT_DIR") {
                 println!("cargo:rerun-if-changed={}", Path::new(&out).join("embree-not-found").display());
             }
         }

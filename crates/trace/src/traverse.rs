@@ -448,6 +448,7 @@ mod tests {
         let mut model: Vec<(u32, f32)> = Vec::new();
         let mut x = 12345u64;
         let mut next = 0u32;
+        let mut deepest = 0;
         for _ in 0..20_000 {
             x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             // Pushes win 55 % of steps in phases: the depth wanders far past STACK_SIZE and back.
@@ -458,11 +459,14 @@ mod tests {
                 next += 1;
                 s.push(e);
                 model.push(e);
+                deepest = deepest.max(model.len());
             } else {
                 assert_eq!(s.pop(), model.pop());
             }
         }
         assert!(next > 3 * STACK_SIZE as u32);
+        // Deep enough that entries went to the spill vector and came back.
+        assert!(deepest > 4 * STACK_SIZE, "deepest {deepest}");
         while let Some(e) = model.pop() {
             assert_eq!(s.pop(), Some(e));
         }
