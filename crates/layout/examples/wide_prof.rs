@@ -30,6 +30,12 @@ fn main() {
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
     let hits = pool.install(|| w.hits(&store, &rays));
     println!("hit fraction {:.4}", hits.iter().filter(|h| h.is_hit()).count() as f64 / rays.len() as f64);
+    if std::env::var_os("WIDE_PROF_STATS").is_some() {
+        // The counting pass (exact test, untimed): steps = wide nodes and leaves entered.
+        let st = pool.install(|| w.trace(&scene.triangles, &rays));
+        let n = rays.len() as f64;
+        println!("steps/ray {:.2}, triangle tests/ray {:.2}", st.total_steps as f64 / n, st.total_intersections as f64 / n);
+    }
     for _ in 0..runs {
         let s = std::time::Instant::now();
         std::hint::black_box(pool.install(|| w.hits(&store, &rays)));

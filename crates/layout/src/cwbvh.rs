@@ -24,7 +24,7 @@ use bvhlab_bvh::{Bvh, CostParams, Refs};
 use bvhlab_geom::{Aabb, Triangle, Vec3};
 use bvhlab_params::Method;
 use bvhlab_trace::fast::{TriTest, Watertight};
-use bvhlab_trace::{Hit, Ray, TraceStats, TriStore};
+use bvhlab_trace::{Hit, PackStore, Ray, TraceStats};
 use serde::{Deserialize, Serialize};
 
 pub const METHOD: Method = Method::new(
@@ -38,7 +38,8 @@ pub const METHOD: Method = Method::new(
 // 3: built from bvh8 version 3 (combined leaves).
 // 4: built from bvh8 version 4 (SAH-optimal collapse by default).
 // 5: nodes unchanged; bvh8 version 5's faster timed traversal (its times re-measured).
-.with_version(5);
+// 6: leaves name their first triangle pack (bvh8 version 6).
+.with_version(6);
 
 /// One compressed node (80 bytes; see the module doc).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -116,8 +117,9 @@ impl CwNode {
 pub struct CwBvh {
     /// Node 0 is the root; every node's inner children are consecutive (breadth-first order).
     pub nodes: Vec<CwNode>,
-    /// (first slot, count) per leaf: triangles `prim_indices[first..first + count]`.
-    pub leaves: Vec<[u32; 2]>,
+    /// (first slot, count, first pack) per leaf, as `bvh8`'s ([`WideBvh::leaves`]): triangles
+    /// `prim_indices[first..first + count]`, in the traversal's store from pack `first pack` on.
+    pub leaves: Vec<[u32; 3]>,
     pub prim_indices: Vec<u32>,
     /// Exact box of the root (tested once per ray before the traversal).
     pub root_bounds: Aabb,
@@ -230,10 +232,10 @@ impl CwBvh {
     /// indices): what SAH cost and validation read.
     pub fn decoded(&self) -> WideBvh {
         let mut w = WideBvh::empty(8, self.prim_indices.clone(), self.root_bounds);
-        // bvh8 names a leaf by its first slot; an out-of-range leaf number keeps a code no leaf
+        // bvh8 names a leaf by its first pack; an out-of-range leaf number keeps a code no leaf
         // starts at, which validation reports.
         let leaf = |c: u32| match self.leaves.get((c & !LEAF_BIT) as usize) {
-            Some(l) => LEAF_BIT | l[0],
+            Some(l) => LEAF_BIT | l[2],
             None => LEAF_BIT | (LEAF_BIT - 1),
         };
         for n in &self.nodes {
@@ -253,10 +255,9 @@ impl CwBvh {
         w
     }
 
-    /// The triangle store the timed traversal reads (leaf ends marked; the `bvh8` one of the same
-    /// BVH is the same store).
-    pub fn store(&self, tris: &[Triangle]) -> TriStore {
-        TriStore::with_leaves(&self.prim_indices, tris, &self.leaves)
+    /// The triangle store the traversal reads (the `bvh8` one of the same BVH is the same store).
+    pub fn store(&self, tris: &[Triangle]) -> PackStore {
+        PackStore::new(&self.prim_indices, tris, &self.leaves)
     }
 
     pub fn memory(&self) -> Memory {
@@ -284,8 +285,8 @@ impl CwBvh {
         self.decoded().validate_unnested(tris, refs)
     }
 
-    fn view<'a>(&'a self, store: &'a TriStore) -> View<'a, Self> {
-        View { src: self, leaves: self.leaves.len(), tris: &store.tris, root: self.root_bounds, nodes: self.nodes.len() }
+    fn view<'a>(&'a self, store: &'a PackStore) -> View<'a, Self> {
+        View { src: self, leaves: self.leaves.len(), packs: &store.packs, root: self.root_bounds, nodes: self.nodes.len() }
     }
 
     /// Closest hits with counters (exact f64 triangle test, scalar box test; untimed).
@@ -295,12 +296,11 @@ impl CwBvh {
     }
 
     /// The timed path: hits only, the watertight f32 test, AVX2 box tests where the CPU has them.
-    pub fn hits(&self, store: &TriStore, rays: &[Ray]) -> Vec<Hit> {
+    pub fn hits(&self, store: &PackStore, rays: &[Ray]) -> Vec<Hit> {
         self.hits_with::<Watertight>(store, rays, Simd::Best)
     }
 
-    pub fn hits_with<T: TriTest>(&self, store: &TriStore, rays: &[Ray], simd: Simd) -> Vec<Hit> {
-        assert!(store.leaf_ends, "the cwbvh traversal needs CwBvh::store's triangles (leaf ends marked)");
+    pub fn hits_with<T: TriTest>(&self, store: &PackStore, rays: &[Ray], simd: Simd) -> Vec<Hit> {
         wide::hits_view8::<T, _>(&self.view(store), rays, simd.resolve(8))
     }
 }
@@ -322,7 +322,7 @@ impl NodeSource<8> for CwBvh {
     }
     #[inline(always)]
     fn first(&self, code: u32) -> Option<usize> {
-        self.leaves.get((code & !LEAF_BIT) as usize).map(|l| l[0] as usize)
+        self.leaves.get((code & !LEAF_BIT) as usize).map(|l| l[2] as usize)
     }
     #[inline(always)]
     fn addr(&self, code: u32) -> Option<*const u8> {

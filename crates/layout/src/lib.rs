@@ -338,8 +338,8 @@ impl Layout {
 /// A layout ready for the timed path ([`Layout::timed`]).
 pub enum Timed<'a> {
     Bvh2(bvhlab_trace::FastBvh2<'a>),
-    Wide(&'a wide::WideBvh, bvhlab_trace::TriStore),
-    Cw(&'a cwbvh::CwBvh, bvhlab_trace::TriStore),
+    Wide(&'a wide::WideBvh, bvhlab_trace::PackStore),
+    Cw(&'a cwbvh::CwBvh, bvhlab_trace::PackStore),
     Exact(&'a Layout),
 }
 

@@ -21,14 +21,20 @@
 //!
 //! Node storage: per node `7 * width` 32-bit words, the storage 32-byte aligned: rows min.x, min.y,
 //! min.z, max.x, max.y, max.z (f32 bits, one value per child) and a row of child codes (inner: node
-//! index; leaf: `LEAF_BIT |` its first triangle slot; empty slot: [`EMPTY`], with the empty box,
+//! index; leaf: `LEAF_BIT |` its first triangle pack; empty slot: [`EMPTY`], with the empty box,
 //! which the sign-selected slab test always misses). bvh4: 112 bytes per node; bvh8: 224, which on
 //! a 32-byte boundary spans exactly four cache lines (unaligned, mostly five: measured 3-8 % slower on
-//! the dragon and the bunny), and whose rows are aligned AVX2 loads. A leaf's triangles run from its first
-//! slot to the triangle marked last in the traversal's triangle store (`TriStore::with_leaves`), so
-//! a leaf visit goes straight to its triangles (one memory access fewer than a leaf table, which
-//! on the dragon is a cache miss per leaf); the (first, count) table `leaves` serves validation
-//! and the counters only.
+//! the dragon and the bunny), and whose rows are aligned AVX2 loads. Leaf triangles are stored for
+//! the traversal in packs of four, structure of arrays (`bvhlab_trace::packs`, as tinybvh's
+//! BVH8_CPU and Embree's triangle4): a leaf runs from its first pack to the triangle marked last,
+//! so a leaf visit goes straight to its triangles (one memory access fewer than a leaf table, which
+//! on the dragon is a cache miss per leaf); the (first slot, count, first pack) table `leaves`
+//! serves validation and the counters only.
+//!
+//! Timed traversal (AVX2): one instantiation of the walk per ray octant (the signs of the
+//! direction), so the box test's near and far rows are constants, as tinybvh's BVH8_CPU does; the
+//! leaf test is inlined into it; the root box is tested in one SSE pass. Callgrind on
+//! breakfast_room (2x10^6 rays): 1,242 M instructions before these three and the packs, 1,048 M after.
 //!
 //! Box test: one SIMD slab test of all children (AVX2 for 8 wide when the CPU has it, detected at
 //! run time; SSE for 4 wide, baseline on x86-64; a scalar loop otherwise), conservative like the
@@ -41,7 +47,8 @@ use bvhlab_bvh::{Bvh, CostParams, Node, Refs};
 use bvhlab_geom::{Aabb, Triangle, Vec3};
 use bvhlab_params::{Kind, Method, ParamSpec};
 use bvhlab_trace::fast::{Exact, SlabRay, TriTest, Watertight};
-use bvhlab_trace::{Hit, Ray, RayBox, Stack, TraceStats, TriStore, WTri, SLAB_ROBUST};
+use bvhlab_trace::packs::packs_for;
+use bvhlab_trace::{Hit, PackStore, Ray, RayBox, Stack, TraceStats, Tri4, SLAB_ROBUST};
 use serde::{Deserialize, Serialize};
 pub use crate::wide_collapse::CollapseCost;
 use crate::wide_collapse::Optimal;
@@ -96,7 +103,9 @@ pub const METHOD4: Method = Method::new(
 // 5: nodes unchanged; the timed traversal's prefetch is straight-line, and where the CPU has AVX2
 //    the leaf test (and bvh4's whole SSE traversal) is compiled for AVX2 (same hits, fewer
 //    instructions): times re-measured.
-.with_version(5);
+// 6: leaf triangles stored in packs of four, structure of arrays (`bvhlab_trace::packs`); a leaf
+//    child's code names its first pack; `leaves` gains the first pack.
+.with_version(6);
 
 pub const METHOD8: Method = Method::new(
     "bvh8",
@@ -104,8 +113,8 @@ pub const METHOD8: Method = Method::new(
     "Ylitie et al. 2017 (optimal collapse, 8-wide); Wald et al. 2008 (greedy collapse)",
     &[COLLAPSE_PARAM],
 )
-// 2, 3, 4, 5: as METHOD4.
-.with_version(5);
+// 2, 3, 4, 5, 6: as METHOD4.
+.with_version(6);
 
 /// Child code of an unused slot.
 pub const EMPTY: u32 = u32::MAX;
@@ -144,7 +153,7 @@ pub(crate) fn subtree_refs(nodes: &[Node]) -> Result<(Vec<u32>, Vec<usize>), Str
     }
     Ok((refs, order))
 }
-/// Set in a child code that names a leaf (the rest is its first triangle slot).
+/// Set in a child code that names a leaf (the rest is its first triangle pack).
 pub const LEAF_BIT: u32 = 1 << 31;
 
 /// 32 bytes on a 32-byte boundary: the unit of [`WideBvh`]'s node storage (module doc).
@@ -159,9 +168,11 @@ pub struct WideBvh {
     /// `7 * width` words per node (see the module doc; [`WideBvh::words`]), node 0 the root; the
     /// last unit may have unused words.
     pub data: Vec<Row32>,
-    /// (first slot, count) per leaf, sorted by first slot: triangles `prim_indices[first..first +
-    /// count]`. Not read by the timed traversal.
-    pub leaves: Vec<[u32; 2]>,
+    /// (first slot, count, first pack) per leaf, sorted by first slot (and so by first pack):
+    /// triangles `prim_indices[first..first + count]`, stored for the traversal in packs of four
+    /// from `first pack` on ([`PackStore`]). Not read by the timed traversal (a leaf code names
+    /// its first pack).
+    pub leaves: Vec<[u32; 3]>,
     pub prim_indices: Vec<u32>,
     /// Box of the root (tested once per ray, exactly, before the SIMD traversal).
     pub root_bounds: Aabb,
@@ -234,12 +245,13 @@ impl WideBvh {
                 w.set_box(wi, slot, &kn.bounds);
                 let code = if leafish(k) {
                     let first = w.prim_indices.len() as u32;
-                    if first & LEAF_BIT != 0 {
-                        return Err(format!("leaf slot {first} beyond the 2^31 a wide layout addresses"));
+                    let pack = w.leaves.last().map_or(0u64, |l| l[2] as u64 + packs_for(l[1]) as u64);
+                    if first & LEAF_BIT != 0 || pack >= LEAF_BIT as u64 {
+                        return Err(format!("leaf slot {first} (pack {pack}) beyond the 2^31 a wide layout addresses"));
                     }
                     w.push_leaf_refs(bvh, k, !kn.is_leaf())?;
-                    w.leaves.push([first, w.prim_indices.len() as u32 - first]);
-                    LEAF_BIT | first
+                    w.leaves.push([first, w.prim_indices.len() as u32 - first, pack as u32]);
+                    LEAF_BIT | pack as u32
                 } else {
                     let ni = w.alloc();
                     work.push((ni, k));
@@ -281,12 +293,12 @@ impl WideBvh {
         if code == EMPTY || code & LEAF_BIT == 0 {
             return None;
         }
-        self.leaves.binary_search_by_key(&(code & !LEAF_BIT), |l| l[0]).ok()
+        self.leaves.binary_search_by_key(&(code & !LEAF_BIT), |l| l[2]).ok()
     }
 
-    /// The triangle store the timed traversal reads: `prim_indices`' triangles with leaf ends marked.
-    pub fn store(&self, tris: &[Triangle]) -> TriStore {
-        TriStore::with_leaves(&self.prim_indices, tris, &self.leaves)
+    /// The triangle store the traversal reads: every leaf's triangles in packs of four.
+    pub fn store(&self, tris: &[Triangle]) -> PackStore {
+        PackStore::new(&self.prim_indices, tris, &self.leaves)
     }
 
     fn stride(&self) -> usize {
@@ -481,12 +493,12 @@ impl WideBvh {
                     stack.push((c, b));
                 } else {
                     let Some(l) = self.leaf_index(code) else {
-                        return Err(format!("node {n} slot {s}: no leaf starts at slot {}", code & !LEAF_BIT));
+                        return Err(format!("node {n} slot {s}: no leaf starts at pack {}", code & !LEAF_BIT));
                     };
                     if std::mem::replace(&mut seen_leaf[l], true) {
                         return Err(format!("node {n} slot {s}: leaf {l} reached twice"));
                     }
-                    let [first, count] = self.leaves[l];
+                    let [first, count, _] = self.leaves[l];
                     let (first, count) = (first as usize, count as usize);
                     if count == 0 || first + count > self.prim_indices.len() {
                         return Err(format!("leaf {l}: slots {first}+{count} out of range"));
@@ -542,7 +554,7 @@ impl WideBvh {
                     EMPTY => continue,
                     c if c & LEAF_BIT == 0 => reach[c as usize],
                     c => {
-                        let [first, count] = self.leaf_index(c).map_or([0, 0], |l| self.leaves[l]);
+                        let [first, count, _] = self.leaf_index(c).map_or([0; 3], |l| self.leaves[l]);
                         let ids = &self.prim_indices[first as usize..(first + count) as usize];
                         ids.iter().fold(Aabb::EMPTY, |u, &p| {
                             let t = tris[p as usize].bounds();
@@ -567,7 +579,7 @@ impl WideBvh {
     pub fn trace(&self, tris: &[Triangle], rays: &[Ray]) -> TraceStats {
         let store = self.store(tris);
         let plain = self.plain();
-        let v = View { src: &plain, leaves: self.leaves.len(), tris: &store.tris, root: self.root_bounds, nodes: self.nodes() };
+        let v = View { src: &plain, leaves: self.leaves.len(), packs: &store.packs, root: self.root_bounds, nodes: self.nodes() };
         match self.width {
             4 => trace_view::<4, _>(&v, rays),
             _ => trace_view::<8, _>(&v, rays),
@@ -575,16 +587,15 @@ impl WideBvh {
     }
 
     /// The timed path: hits only, the watertight f32 test, the SIMD box test.
-    pub fn hits(&self, store: &TriStore, rays: &[Ray]) -> Vec<Hit> {
+    pub fn hits(&self, store: &PackStore, rays: &[Ray]) -> Vec<Hit> {
         self.hits_with::<Watertight>(store, rays, Simd::Best)
     }
 
     /// Hits with the triangle test `T` and the box test `simd` (tests check every combination).
-    /// `store` comes from [`WideBvh::store`] (leaf ends marked; checked).
-    pub fn hits_with<T: TriTest>(&self, store: &TriStore, rays: &[Ray], simd: Simd) -> Vec<Hit> {
-        assert!(store.leaf_ends, "the wide traversal needs WideBvh::store's triangles (leaf ends marked)");
+    /// `store` comes from [`WideBvh::store`].
+    pub fn hits_with<T: TriTest>(&self, store: &PackStore, rays: &[Ray], simd: Simd) -> Vec<Hit> {
         let plain = self.plain();
-        let v = View { src: &plain, leaves: self.leaves.len(), tris: &store.tris, root: self.root_bounds, nodes: self.nodes() };
+        let v = View { src: &plain, leaves: self.leaves.len(), packs: &store.packs, root: self.root_bounds, nodes: self.nodes() };
         match self.width {
             4 => hits_view4::<T, _>(&v, rays, simd.resolve(4)),
             _ => hits_view8::<T, _>(&v, rays, simd.resolve(8)),
@@ -640,7 +651,7 @@ pub(crate) trait NodeSource<const W: usize> {
     /// Child code of `slot` of node `n` (inner: node index; leaf: `LEAF_BIT | ` the source's leaf
     /// number).
     fn code(&self, n: usize, slot: usize) -> u32;
-    /// First triangle slot of the leaf a leaf code names (None: no such leaf).
+    /// First triangle pack of the leaf a leaf code names (None: no such leaf).
     fn first(&self, code: u32) -> Option<usize>;
     /// Where inner child `code`'s node starts in memory (for a prefetch; None: nothing to fetch).
     fn addr(&self, code: u32) -> Option<*const u8>;
@@ -648,13 +659,13 @@ pub(crate) trait NodeSource<const W: usize> {
     const NODE_BYTES: usize;
 }
 
-/// The traversal's view of a wide BVH: its nodes and the triangles in leaf-slot order.
+/// The traversal's view of a wide BVH: its nodes and its leaves' triangle packs.
 #[derive(Clone, Copy)]
 pub(crate) struct View<'a, N> {
     pub src: &'a N,
     /// Number of leaves (bounds the steps of a ray in a malformed layout).
     pub leaves: usize,
-    pub tris: &'a [WTri],
+    pub packs: &'a [Tri4],
     pub root: Aabb,
     pub nodes: usize,
 }
@@ -743,24 +754,38 @@ impl WideBox<4> for Sse4 {
 /// [`Sse4`] where the CPU has AVX2 (only instantiated in [`chunk_avx4`]): the same box test, and the
 /// leaves take the leaf test's AVX2 build.
 #[cfg(target_arch = "x86_64")]
-struct Sse4Vex;
+struct Sse4Vex<const OCT: usize>;
 #[cfg(target_arch = "x86_64")]
-impl WideBox<4> for Sse4Vex {
+impl<const OCT: usize> WideBox<4> for Sse4Vex<OCT> {
     const AVX2: bool = true;
     #[inline(always)]
     unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; 4]) -> u32 {
-        unsafe { Sse4::test(rows, r, tmax, dist) }
+        unsafe { Sse4::test(rows, &octant_rows::<OCT>(r), tmax, dist) }
     }
 }
 
+/// `r` with its plane rows replaced by the constants of octant `OCT` (the same rows, as `r` is of
+/// that octant): inlined into a box test, the row loads get constant offsets.
+#[inline(always)]
+fn octant_rows<const OCT: usize>(r: &SlabRay) -> SlabRay {
+    debug_assert_eq!(r.near, [0, 1, 2].map(|a| oct_row(OCT, a, false)));
+    SlabRay {
+        near: [0, 1, 2].map(|a| oct_row(OCT, a, false)),
+        far: [0, 1, 2].map(|a| oct_row(OCT, a, true)),
+        ..*r
+    }
+}
+
+/// The 8-wide AVX2 box test for rays of octant `OCT` (its plane rows constants: [`by_octant`]).
 #[cfg(target_arch = "x86_64")]
-struct Avx8;
+struct Avx8<const OCT: usize>;
 #[cfg(target_arch = "x86_64")]
-impl WideBox<8> for Avx8 {
+impl<const OCT: usize> WideBox<8> for Avx8<OCT> {
     const AVX2: bool = true;
     #[inline(always)]
     unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; 8]) -> u32 {
         use std::arch::x86_64::*;
+        let r = &octant_rows::<OCT>(r);
         unsafe {
             let t = |k: usize, a: usize| {
                 _mm256_mul_ps(
@@ -840,7 +865,12 @@ fn chunk<const W: usize, T: TriTest, N: NodeSource<W>, B: WideBox<W>>(v: &View<N
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn chunk_avx8<T: TriTest, N: NodeSource<8>>(v: &View<N>, rays: &[Ray], hits: &mut [Hit], stack: &mut Stack) {
-    chunk::<8, T, N, Avx8>(v, rays, hits, stack)
+    if v.nodes == 0 || v.root.is_empty() {
+        return hits.fill(Hit::NONE);
+    }
+    for (h, r) in hits.iter_mut().zip(rays) {
+        *h = by_octant!(v, r, stack, 8, T, Avx8);
+    }
 }
 
 /// The 4-wide chunk compiled for AVX2: the same SSE box test (VEX-encoded) and the leaf test's
@@ -848,7 +878,53 @@ unsafe fn chunk_avx8<T: TriTest, N: NodeSource<8>>(v: &View<N>, rays: &[Ray], hi
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn chunk_avx4<T: TriTest, N: NodeSource<4>>(v: &View<N>, rays: &[Ray], hits: &mut [Hit], stack: &mut Stack) {
-    chunk::<4, T, N, Sse4Vex>(v, rays, hits, stack)
+    if v.nodes == 0 || v.root.is_empty() {
+        return hits.fill(Hit::NONE);
+    }
+    for (h, r) in hits.iter_mut().zip(rays) {
+        *h = by_octant!(v, r, stack, 4, T, Sse4Vex);
+    }
+}
+
+/// One ray through the walk instantiated for its octant (the signs of its inverse direction):
+/// the box test's near and far rows are then constants (tinybvh's BVH8_CPU specializes its
+/// traversal the same way), instead of per-ray row indices computed and carried through the walk.
+/// The caller has checked once that the tree has a root with a non-empty box ([`View::one`]'s
+/// other checks).
+#[cfg(target_arch = "x86_64")]
+macro_rules! by_octant {
+    ($v:expr, $r:expr, $stack:expr, $w:literal, $t:ty, $b:ident) => {{
+        let (v, r) = ($v, $r);
+        if !(r.tmax > 0.0) {
+            Hit::NONE
+        } else {
+            let sr = SlabRay::new(r);
+            match sr.oct {
+                0 => v.one_slab::<$w, $t, $b<0>, false>(r, &sr, $stack).0,
+                1 => v.one_slab::<$w, $t, $b<1>, false>(r, &sr, $stack).0,
+                2 => v.one_slab::<$w, $t, $b<2>, false>(r, &sr, $stack).0,
+                3 => v.one_slab::<$w, $t, $b<3>, false>(r, &sr, $stack).0,
+                4 => v.one_slab::<$w, $t, $b<4>, false>(r, &sr, $stack).0,
+                5 => v.one_slab::<$w, $t, $b<5>, false>(r, &sr, $stack).0,
+                6 => v.one_slab::<$w, $t, $b<6>, false>(r, &sr, $stack).0,
+                _ => v.one_slab::<$w, $t, $b<7>, false>(r, &sr, $stack).0,
+            }
+        }
+    }};
+}
+#[cfg(target_arch = "x86_64")]
+use by_octant;
+
+/// Row of the near (`far == false`) or far plane of axis `a` in octant `oct` (bit `a` set: the
+/// direction is negative along `a`, so the near plane is the box's max): rows are min.x, min.y,
+/// min.z, max.x, max.y, max.z.
+const fn oct_row(oct: usize, a: usize, far: bool) -> usize {
+    let neg = (oct >> a) & 1 == 1;
+    if neg != far {
+        a + 3
+    } else {
+        a
+    }
 }
 
 impl<N> View<'_, N> {
@@ -860,10 +936,10 @@ impl<N> View<'_, N> {
         #[cfg(target_arch = "x86_64")]
         {
             use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-            // A leaf: its first LEAF_BLOCK triangles (one four-wide test); a node: all of it.
+            // A leaf: its first pack (one four-wide test); a node: all of it.
             let (p, bytes) = if code & LEAF_BIT != 0 {
-                let t = self.src.first(code).and_then(|f| self.tris.get(f));
-                (t.map(|t| t as *const WTri as *const u8), LEAF_BLOCK as usize * std::mem::size_of::<WTri>())
+                let t = self.src.first(code).and_then(|f| self.packs.get(f));
+                (t.map(|t| t as *const Tri4 as *const u8), std::mem::size_of::<Tri4>())
             } else {
                 (self.src.addr(code), N::NODE_BYTES)
             };
@@ -900,18 +976,32 @@ impl<N> View<'_, N> {
             return (Hit::NONE, 0, 0);
         }
         let sr = SlabRay::new(ray);
+        self.one_slab::<W, T, B, STATS>(ray, &sr, stack)
+    }
+
+    /// [`Self::one`] after its checks, with the ray's slab data.
+    #[inline(always)]
+    fn one_slab<const W: usize, T: TriTest, B: WideBox<W>, const STATS: bool>(
+        &self,
+        ray: &Ray,
+        sr: &SlabRay,
+        stack: &mut Stack,
+    ) -> (Hit, u32, u32)
+    where
+        N: NodeSource<W>,
+    {
         if sr.parallel {
             let rb = RayBox::new(ray);
             if rb.hit(&self.root, ray.tmax).is_none() {
                 return (Hit::NONE, 0, 0);
             }
-            self.walk::<W, T, Parallel, STATS>(ray, &sr, Some(&rb), stack)
+            self.walk::<W, T, Parallel, STATS>(ray, sr, Some(&rb), stack)
         } else {
             // The same test as `RayBox::hit` for a ray with no zero component, without its divisions.
-            if sr.hit(&self.root, ray.tmax).is_none() {
+            if !sr.enters(&self.root, ray.tmax) {
                 return (Hit::NONE, 0, 0);
             }
-            self.walk::<W, T, B, STATS>(ray, &sr, None, stack)
+            self.walk::<W, T, B, STATS>(ray, sr, None, stack)
         }
     }
 
@@ -984,15 +1074,15 @@ impl<N> View<'_, N> {
                     }
                 }
             } else if let Some(first) = self.src.first(cur) {
-                // The leaf's triangles: from its first slot to the one marked last.
+                // The leaf's triangles: from its first pack to the lane marked last.
                 let tr = &*tr.get_or_insert_with(|| T::prepare(ray, &sr.inv));
-                let leaf = self.tris.get(first..).unwrap_or_default();
+                let leaf = self.packs.get(first..).unwrap_or_default();
                 let n = if B::AVX2 {
                     // SAFETY: `B::AVX2` holds only for the AVX2 box test, which runs only after
                     // `Simd::resolve` found AVX2.
-                    unsafe { T::test_leaf_avx2(tr, leaf, &mut best) }
+                    unsafe { T::test_packs_avx2(tr, leaf, &mut best) }
                 } else {
-                    T::test_leaf(tr, leaf, &mut best)
+                    T::test_packs(tr, leaf, &mut best)
                 };
                 if STATS {
                     tests += n;

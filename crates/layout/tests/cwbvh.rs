@@ -42,7 +42,7 @@ fn check_cw_with(c: &Case, collapse: &str) -> f64 {
     let m = l.memory();
     assert_eq!(m.topology_bytes, (cw.nodes.len() * 80 + cw.leaves.len() * 8) as u64);
     // Nodes under half of bvh8's; cwbvh keeps a leaf table (8 bytes per leaf) that bvh8 no longer
-    // needs (its leaf codes name the first triangle slot), so the whole is compared as smaller only.
+    // needs (its leaf codes name the first triangle pack), so the whole is compared as smaller only.
     assert!(cw.nodes.len() * 80 * 2 < w8.nodes() * 224, "{}: nodes not compressed", c.spec);
     assert!(m.topology_bytes < w8.memory().topology_bytes, "{}: not compressed", c.spec);
     let cost = CostParams::default();

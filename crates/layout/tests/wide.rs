@@ -9,7 +9,7 @@ use bvhlab_layout::wide::{Collapse, CollapseCost, Simd, WideBvh, EMPTY, LEAF_BIT
 use bvhlab_layout::wide_collapse::optimal_cost;
 use bvhlab_layout::{build, Layout};
 use bvhlab_trace::fast::{Exact, Watertight};
-use bvhlab_trace::{brute_force, check_agreement, Ray, TriStore};
+use bvhlab_trace::{brute_force, check_agreement, Ray};
 use common::*;
 
 const SIMDS: [Simd; 4] = [Simd::Best, Simd::Avx2, Simd::Sse, Simd::Scalar];
@@ -195,21 +195,30 @@ fn identical_at_any_thread_count() {
     assert_eq!(a.1.steps, b.1.steps);
 }
 
-/// A leaf child names its first triangle slot and its triangles run to the store's end mark, so a
-/// store without marks is refused (it would test the following leaves' triangles too), and every
-/// leaf's last slot carries the mark.
+/// A leaf child names its first triangle pack: every leaf's triangles fill its packs in slot order,
+/// only its last carries the end mark, and leaves take consecutive runs of packs.
 #[test]
-#[should_panic(expected = "leaf ends marked")]
-fn timed_path_refuses_a_store_without_leaf_ends() {
-    let c = case("gen:sphere:n=500", 2, 10, 5);
-    let w = WideBvh::build(&c.bvh, 8).unwrap();
-    let store = w.store(&c.scene.triangles);
-    let ends: Vec<usize> = w.leaves.iter().map(|l| (l[0] + l[1] - 1) as usize).collect();
-    let marked: Vec<usize> = (0..store.tris.len()).filter(|&i| store.tris[i].last != 0).collect();
-    let mut want = ends.clone();
-    want.sort_unstable();
-    assert_eq!(marked, want);
-    w.hits(&TriStore::new(&w.prim_indices, &c.scene.triangles), &c.rays);
+fn leaves_are_runs_of_packs_named_by_their_codes() {
+    use bvhlab_trace::packs::{packs_for, END};
+    // Binary leaves of up to 8 triangles: some leaves take two packs.
+    let c = case("gen:sphere:n=500", 8, 10, 5);
+    for collapse in [Collapse::Greedy, Collapse::default()] {
+        let w = WideBvh::build_with(&c.bvh, 8, collapse).unwrap();
+        let store = w.store(&c.scene.triangles);
+        let mut next = 0;
+        for &[first, count, pack] in &w.leaves {
+            assert_eq!(pack, next, "leaves take consecutive packs");
+            next = pack + packs_for(count);
+            for j in 0..count as usize {
+                let p = store.packs[pack as usize + j / 4].prim[j % 4];
+                assert_eq!(p & !END, w.prim_indices[first as usize + j]);
+                assert_eq!(p & END != 0, j + 1 == count as usize, "END on the leaf's last triangle only");
+            }
+            assert_eq!(w.leaf_index(LEAF_BIT | pack).map(|l| w.leaves[l][0]), Some(first));
+        }
+        assert_eq!(store.packs.len(), next as usize);
+        assert!(w.leaves.iter().any(|l| l[1] > 4), "some leaf spans two packs (the case is meant to have one)");
+    }
 }
 
 /// The parts of the cheapest collapse of the subtree below `n`, by trying every way to cut each wide

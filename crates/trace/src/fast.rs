@@ -18,6 +18,7 @@
 #[cfg(target_arch = "x86_64")]
 use crate::pairs::pairs_one;
 use crate::pairs::Pairs;
+use crate::packs::Tri4;
 use crate::{accept, intersect_triangle, Hit, Ray, RayBox, Stack, TraceStats, SLAB_ROBUST};
 use bvhlab_bvh::{Bvh, Node};
 use bvhlab_geom::{Aabb, Triangle, Vec3};
@@ -114,6 +115,22 @@ pub trait TriTest: Sync {
     unsafe fn test_leaf_avx2(r: &Self::Ray, tris: &[WTri], best: &mut Hit) -> u32 {
         Self::test_leaf(r, tris, best)
     }
+    /// Tests a leaf stored in packs ([`crate::packs`]): `packs[0]` up to the lane marked
+    /// [`crate::packs::END`]; returns how many triangles were tested. One at a time here;
+    /// [`Watertight`] tests a pack at once.
+    #[inline(always)]
+    fn test_packs(r: &Self::Ray, packs: &[Tri4], best: &mut Hit) -> u32 {
+        crate::packs::test_packs_with(r, packs, best, Self::test)
+    }
+    /// [`Self::test_packs`] compiled for AVX2 where a test has such a build (as
+    /// [`Self::test_leaf_avx2`]).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[inline(always)]
+    unsafe fn test_packs_avx2(r: &Self::Ray, packs: &[Tri4], best: &mut Hit) -> u32 {
+        Self::test_packs(r, packs, best)
+    }
 }
 
 /// The reference: [`intersect_triangle`] in f64, bit-identical to brute force.
@@ -140,9 +157,9 @@ impl TriTest for Exact {
 #[derive(Clone, Copy, Debug)]
 pub struct WoopRay {
     /// The origin permuted to (kx, ky, kz).
-    org: [f32; 3],
-    k: [usize; 3],
-    s: [f32; 3],
+    pub(crate) org: [f32; 3],
+    pub(crate) k: [usize; 3],
+    pub(crate) s: [f32; 3],
 }
 
 impl WoopRay {
@@ -187,8 +204,8 @@ impl WoopRay {
 /// or below 1e-15, whose products overflow or lose digits to subnormals) the test is redone in f64,
 /// like Woop 2013's fallback for an edge function exactly 0 (section 3.3). Keeps the fast path
 /// scale-free (issue 15) at no cost for ordinary scenes.
-const DET_MIN: f32 = 1e-30;
-const DET_MAX: f32 = 1e30;
+pub(crate) const DET_MIN: f32 = 1e-30;
+pub(crate) const DET_MAX: f32 = 1e30;
 
 /// Woop, Benthin and Wald 2013, fig. 6, without backface culling. Watertight: an edge shared by two
 /// triangles gives both the same edge function (up to sign), so no ray passes between them.
@@ -275,6 +292,24 @@ impl TriTest for Watertight {
         return unsafe { by_axis_order!(leaf4_avx2, r, tris, best) };
         #[cfg(not(target_arch = "x86_64"))]
         Exact::test_leaf_with(r, tris, best, intersect_watertight)
+    }
+    #[inline(always)]
+    fn test_packs(r: &WoopRay, packs: &[Tri4], best: &mut Hit) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        return crate::packs::watertight_packs_sse(r, packs, best);
+        #[cfg(not(target_arch = "x86_64"))]
+        crate::packs::test_packs_with(r, packs, best, intersect_watertight)
+    }
+    /// Inlined into the caller (the wide traversals' AVX2 builds), so it is compiled for AVX2
+    /// with it, and the ray's data stay in its registers: as a call of its own, the leaf test's
+    /// entry and exit cost 16 instructions per leaf and the walk spilled around it (callgrind on
+    /// breakfast_room: -6 % instructions inlined).
+    #[inline(always)]
+    unsafe fn test_packs_avx2(r: &WoopRay, packs: &[Tri4], best: &mut Hit) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        return crate::packs::watertight_packs(r, packs, best);
+        #[cfg(not(target_arch = "x86_64"))]
+        crate::packs::test_packs_with(r, packs, best, intersect_watertight)
     }
 }
 
@@ -416,63 +451,15 @@ unsafe fn watertight4<const KX: usize, const KY: usize, const KZ: usize>(
             ends.trailing_zeros() + 1
         };
         let v = [[x0, y0, z0], [x1, y1, z1], [x2, y2, z2]];
-        let (kx, ky, kz) = (KX, KY, KZ);
-        let set = _mm_set1_ps;
-        let (ox, oy, oz) = (set(r.org[0]), set(r.org[1]), set(r.org[2]));
-        let (sx, sy, sz) = (set(r.s[0]), set(r.s[1]), set(r.s[2]));
-        let (az, bz, cz) = (
-            _mm_sub_ps(v[0][kz], oz),
-            _mm_sub_ps(v[1][kz], oz),
-            _mm_sub_ps(v[2][kz], oz),
-        );
-        let sh = |i: usize, z: __m128| {
-            (
-                _mm_sub_ps(_mm_sub_ps(v[i][kx], ox), _mm_mul_ps(sx, z)),
-                _mm_sub_ps(_mm_sub_ps(v[i][ky], oy), _mm_mul_ps(sy, z)),
-            )
-        };
-        let ((ax, ay), (bx, by), (cx, cy)) = (sh(0, az), sh(1, bz), sh(2, cz));
-        let u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
-        let vv = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
-        let w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
-        let det = _mm_add_ps(_mm_add_ps(u, vv), w);
-        let zero = _mm_setzero_ps();
         let valid = (1i32 << lanes) - 1;
         let done = (lanes, ends != 0);
-        let on_edge = _mm_or_ps(
-            _mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(vv, zero)),
-            _mm_cmpeq_ps(w, zero),
-        );
-        let adet = _mm_andnot_ps(set(-0.0), det);
-        let trusted = _mm_and_ps(
-            _mm_cmpge_ps(adet, set(DET_MIN)),
-            _mm_cmple_ps(adet, set(DET_MAX)),
-        );
-        let fallback = (_mm_movemask_ps(on_edge) | (!_mm_movemask_ps(trusted) & 0xf)) & valid;
-        let neg = _mm_or_ps(
-            _mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(vv, zero)),
-            _mm_cmplt_ps(w, zero),
-        );
-        let pos = _mm_or_ps(
-            _mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(vv, zero)),
-            _mm_cmpgt_ps(w, zero),
-        );
-        let mut cand = !_mm_movemask_ps(_mm_and_ps(neg, pos)) & valid & !fallback;
-        if cand != 0 {
-            let t = _mm_add_ps(
-                _mm_add_ps(
-                    _mm_mul_ps(u, _mm_mul_ps(sz, az)),
-                    _mm_mul_ps(vv, _mm_mul_ps(sz, bz)),
-                ),
-                _mm_mul_ps(w, _mm_mul_ps(sz, cz)),
-            );
-            let mut ts = [0f32; 4];
-            _mm_storeu_ps(ts.as_mut_ptr(), _mm_div_ps(t, det));
-            while cand != 0 {
-                let l = cand.trailing_zeros() as usize;
-                cand &= cand - 1;
-                accept(ts[l], q[l].prim, best);
-            }
+        // Columns picked by the constant axis order (from registers).
+        let axes = [KX, KY, KZ];
+        let (mut cand, fallback, ts) = woop4(r, |i, j| v[i][axes[j]], valid);
+        while cand != 0 {
+            let l = cand.trailing_zeros() as usize;
+            cand &= cand - 1;
+            accept(ts[l], q[l].prim, best);
         }
         let mut fb = fallback;
         while fb != 0 {
@@ -486,6 +473,56 @@ unsafe fn watertight4<const KX: usize, const KY: usize, const KZ: usize>(
     }
 }
 
+/// The four-lane core of the watertight test (Woop et al. 2013, fig. 6) shared by the AoS leaf test
+/// ([`watertight4`]) and the packs ([`crate::packs`]): `row(i, j)` gives coordinate `r.k[j]` of
+/// vertex `i` of the four triangles. The same f32 operations in the same order per lane as
+/// [`intersect_watertight`], so the same values. Returns the lanes of `valid` that hit (their
+/// distances in `ts`, unchecked against the ray's range: [`accept`] does that) and the lanes of
+/// `valid` that need the one-triangle test's f64 fallback (an edge function 0, |det| untrusted).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) unsafe fn woop4(
+    r: &WoopRay,
+    row: impl Fn(usize, usize) -> std::arch::x86_64::__m128,
+    valid: i32,
+) -> (i32, i32, [f32; 4]) {
+    use std::arch::x86_64::*;
+    unsafe {
+        let set = _mm_set1_ps;
+        let (ox, oy, oz) = (set(r.org[0]), set(r.org[1]), set(r.org[2]));
+        let (sx, sy, sz) = (set(r.s[0]), set(r.s[1]), set(r.s[2]));
+        let (az, bz, cz) = (_mm_sub_ps(row(0, 2), oz), _mm_sub_ps(row(1, 2), oz), _mm_sub_ps(row(2, 2), oz));
+        let sh = |i: usize, z: __m128| {
+            (
+                _mm_sub_ps(_mm_sub_ps(row(i, 0), ox), _mm_mul_ps(sx, z)),
+                _mm_sub_ps(_mm_sub_ps(row(i, 1), oy), _mm_mul_ps(sy, z)),
+            )
+        };
+        let ((ax, ay), (bx, by), (cx, cy)) = (sh(0, az), sh(1, bz), sh(2, cz));
+        let u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
+        let vv = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
+        let w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
+        let det = _mm_add_ps(_mm_add_ps(u, vv), w);
+        let zero = _mm_setzero_ps();
+        let on_edge = _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(vv, zero)), _mm_cmpeq_ps(w, zero));
+        let adet = _mm_andnot_ps(set(-0.0), det);
+        let trusted = _mm_and_ps(_mm_cmpge_ps(adet, set(DET_MIN)), _mm_cmple_ps(adet, set(DET_MAX)));
+        let fallback = (_mm_movemask_ps(on_edge) | (!_mm_movemask_ps(trusted) & 0xf)) & valid;
+        let neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(vv, zero)), _mm_cmplt_ps(w, zero));
+        let pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(vv, zero)), _mm_cmpgt_ps(w, zero));
+        let cand = !_mm_movemask_ps(_mm_and_ps(neg, pos)) & valid & !fallback;
+        let mut ts = [0f32; 4];
+        if cand != 0 {
+            let t = _mm_add_ps(
+                _mm_add_ps(_mm_mul_ps(u, _mm_mul_ps(sz, az)), _mm_mul_ps(vv, _mm_mul_ps(sz, bz))),
+                _mm_mul_ps(w, _mm_mul_ps(sz, cz)),
+            );
+            _mm_storeu_ps(ts.as_mut_ptr(), _mm_div_ps(t, det));
+        }
+        (cand, fallback, ts)
+    }
+}
+
 /// Per-ray box-test data: origin, inverse direction and, per axis, which of the six box
 /// coordinates (`[min.x, min.y, min.z, max.x, max.y, max.z]`) is the near plane.
 #[derive(Clone, Copy, Debug)]
@@ -494,32 +531,83 @@ pub struct SlabRay {
     pub inv: [f32; 3],
     pub near: [usize; 3],
     pub far: [usize; 3],
-    /// Some direction component is 0: use [`RayBox::hit`] instead (exact for parallel rays).
+    /// Bit `a`: the direction is negative along axis `a` (the near plane is the box's max).
+    pub oct: u32,
+    /// Some inverse direction component is not finite or is zero (a zero, subnormal or infinite
+    /// direction component, or NaN): use [`RayBox::hit`] instead (exact for such rays).
     pub parallel: bool,
 }
 
 impl SlabRay {
     #[inline(always)]
     pub fn new(ray: &Ray) -> SlabRay {
-        let d = ray.dir.to_array();
-        let inv = d.map(|d| 1.0 / d);
-        let near = [0, 1, 2].map(|a| a + 3 * ((inv[a] < 0.0) as usize));
+        let d = ray.dir;
+        // One SSE division and sign mask (this runs once per ray: written with scalars and array
+        // maps it compiled to about 50 instructions, callgrind on breakfast_room).
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: SSE is in the x86-64 baseline.
+        let (inv, oct, ok) = unsafe {
+            use std::arch::x86_64::*;
+            let i4 = _mm_div_ps(_mm_set1_ps(1.0), _mm_setr_ps(d.x, d.y, d.z, 1.0));
+            let a = _mm_andnot_ps(_mm_set1_ps(-0.0), i4);
+            let ok = _mm_and_ps(_mm_cmplt_ps(a, _mm_set1_ps(f32::INFINITY)), _mm_cmpgt_ps(a, _mm_setzero_ps()));
+            let mut inv = [0f32; 4];
+            _mm_storeu_ps(inv.as_mut_ptr(), i4);
+            ([inv[0], inv[1], inv[2]], _mm_movemask_ps(i4) as u32 & 7, _mm_movemask_ps(ok) == 0xf)
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let (inv, oct, ok) = {
+            let inv = [1.0 / d.x, 1.0 / d.y, 1.0 / d.z];
+            let ok = inv.iter().all(|i| i.is_finite() && *i != 0.0);
+            let oct = (0..3).map(|a| (inv[a].is_sign_negative() as u32) << a).sum();
+            (inv, oct, ok)
+        };
+        // For the rays that use them (finite nonzero inverse) the sign bit is `inv < 0`.
+        let n = [(oct & 1) as usize * 3, (oct >> 1 & 1) as usize * 3, (oct >> 2) as usize * 3];
         SlabRay {
             origin: ray.origin.to_array(),
             inv,
-            near,
-            far: near.map(|n| (n + 3) % 6),
+            near: [n[0], 1 + n[1], 2 + n[2]],
+            far: [3 - n[0], 4 - n[1], 5 - n[2]],
+            oct,
             // A zero (or subnormal) component has no finite inverse: (bound - origin) * inf is NaN
-            // on a slab plane. Such rays take `RayBox::hit`; every other ray's products are NaN-free.
-            parallel: inv.iter().any(|i| !i.is_finite()),
+            // on a slab plane; an infinite one has inverse 0, and (inf bound - origin) * 0 is NaN.
+            // Such rays take `RayBox::hit`; every other ray's products are NaN-free.
+            parallel: !ok,
         }
     }
 
-    /// Entry distance of `b` within [0, tmax] (conservative like [`RayBox::hit`]: far scaled by
-    /// [`SLAB_ROBUST`]); the near/far planes are fixed per ray, so an empty box (min = +inf,
-    /// max = -inf) always misses. The planes are picked per axis by the direction's sign (a
-    /// branch the same way for the whole ray), not by indexing: an indexed copy of the box would
-    /// go through the stack.
+    /// Whether [`Self::hit`] finds an entry, in one SSE pass (the per-ray root test of the
+    /// timed paths): the same products, combined in the same order by `maxps` / `minps`, which
+    /// are `fmax` / `fmin` exactly (the second operand when either is NaN), so the same answer.
+    #[inline(always)]
+    pub fn enters(&self, b: &Aabb, tmax: f32) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: SSE is in the x86-64 baseline.
+        unsafe {
+            use std::arch::x86_64::*;
+            let (o, i) = (self.origin, self.inv);
+            // Lane 3 carries the clamps: a near plane 0 and a far plane tmax (origin 0, inverse 1).
+            let o4 = _mm_setr_ps(o[0], o[1], o[2], 0.0);
+            let i4 = _mm_setr_ps(i[0], i[1], i[2], 1.0);
+            let lo = _mm_setr_ps(b.min.x, b.min.y, b.min.z, 0.0);
+            let hi = _mm_setr_ps(b.max.x, b.max.y, b.max.z, tmax);
+            let neg = _mm_cmplt_ps(i4, _mm_setzero_ps());
+            let np = _mm_or_ps(_mm_and_ps(neg, hi), _mm_andnot_ps(neg, lo));
+            let fp = _mm_or_ps(_mm_and_ps(neg, lo), _mm_andnot_ps(neg, hi));
+            let tn = _mm_mul_ps(_mm_sub_ps(np, o4), i4);
+            let tf = _mm_mul_ps(_mm_sub_ps(fp, o4), i4);
+            // fmax(fmax(x, y), fmax(z, 0)) as `hit`: pairs first, then the two pairs.
+            let n2 = _mm_max_ps(tn, _mm_shuffle_ps::<0b10_11_00_01>(tn, tn));
+            let near = _mm_max_ss(n2, _mm_movehl_ps(n2, n2));
+            let f2 = _mm_min_ps(tf, _mm_shuffle_ps::<0b10_11_00_01>(tf, tf));
+            let far = _mm_min_ss(f2, _mm_movehl_ps(f2, f2));
+            _mm_cvtss_f32(near) <= _mm_cvtss_f32(far) * SLAB_ROBUST
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        self.hit(b, tmax).is_some()
+    }
+
     #[inline(always)]
     pub fn hit(&self, b: &Aabb, tmax: f32) -> Option<f32> {
         let (o, i) = (self.origin, self.inv);
@@ -623,7 +711,7 @@ impl<'a> FastBvh2<'a> {
                             } else if ray.tmax.is_nan()
                                 || ray.tmax <= 0.0
                                 || nodes[0].bounds.is_empty()
-                                || sr.hit(&nodes[0].bounds, ray.tmax).is_none()
+                                || !sr.enters(&nodes[0].bounds, ray.tmax)
                             {
                                 Hit::NONE
                             } else {

@@ -4,11 +4,13 @@
 
 pub mod fast;
 pub mod heatmap;
+pub mod packs;
 pub mod pairs;
 pub mod rays;
 pub mod traverse;
 
 pub use fast::{agrees, check_agreement, FastBvh2, TriStore, WTri};
+pub use packs::{PackStore, Tri4};
 pub use rays::{primary_rays, random_rays, shadow_rays, Camera, Ray};
 pub use traverse::{
     accept, brute_force, brute_force_one, intersect_triangle, trace, trace_with, Hit, Pending,

@@ -171,7 +171,8 @@ fn identical_at_any_thread_count() {
 #[test]
 fn four_wide_leaf_test_equals_the_scalar_one() {
     use bvhlab_trace::fast::{intersect_watertight, TriStore, TriTest, WoopRay};
-    use bvhlab_trace::{accept, Hit};
+    use bvhlab_trace::packs::packs_for;
+    use bvhlab_trace::{accept, Hit, PackStore};
     let mut sets = vec![random_triangles(64, 0.3, 11)];
     let fan: Vec<Triangle> = (0..8)
         .map(|k| {
@@ -216,9 +217,20 @@ fn four_wide_leaf_test_equals_the_scalar_one() {
                 .map(|k| [k * len as u32, len as u32])
                 .collect();
             let store = TriStore::with_leaves(&ids, tris, &leaves);
+            // The same leaves in packs of four (the wide layouts' store).
+            let mut next = 0;
+            let packed: Vec<[u32; 3]> = leaves
+                .iter()
+                .map(|&[f, c]| {
+                    let p = next;
+                    next += packs_for(c);
+                    [f, c, p]
+                })
+                .collect();
+            let packs = PackStore::new(&ids, tris, &packed);
             for r in &rays {
                 let wr = WoopRay::new(r.origin, r.dir);
-                for &[first, _] in &leaves {
+                for (&[first, _], &[_, _, pack]) in leaves.iter().zip(&packed) {
                     let leaf = &store.tris[first as usize..];
                     let (mut got, mut want) = (Hit::within(r.tmax), Hit::within(r.tmax));
                     let n = Watertight::test_leaf(&wr, leaf, &mut got);
@@ -233,10 +245,62 @@ fn four_wide_leaf_test_equals_the_scalar_one() {
                         (want.t.to_bits(), want.prim),
                         "set {si} len {len}"
                     );
+                    let mut in_packs = Hit::within(r.tmax);
+                    let n = Watertight::test_packs(&wr, &packs.packs[pack as usize..], &mut in_packs);
+                    assert_eq!((n as usize, in_packs), (len, got), "packs: set {si} len {len}");
+                    #[cfg(target_arch = "x86_64")]
+                    if std::is_x86_feature_detected!("avx2") {
+                        let mut avx = Hit::within(r.tmax);
+                        // SAFETY: AVX2 was detected.
+                        let n = unsafe { Watertight::test_packs_avx2(&wr, &packs.packs[pack as usize..], &mut avx) };
+                        assert_eq!((n as usize, avx), (len, got), "packs, AVX2: set {si} len {len}");
+                    }
                 }
             }
         }
     }
+}
+
+/// The one-pass root test answers as the slab test it stands for, on ordinary, huge, tiny,
+/// infinite and NaN values (the products may then be inf or NaN: the SIMD max / min must treat
+/// them as `hit`'s comparisons do).
+#[test]
+fn one_pass_root_test_equals_the_slab_test() {
+    use bvhlab_geom::Aabb;
+    use bvhlab_trace::fast::SlabRay;
+    let mut x = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = |odd: bool| {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        let u = (x >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0;
+        match (x % 41, odd) {
+            (0, true) => f32::NAN,
+            (1, true) => f32::INFINITY,
+            (2, true) => -f32::INFINITY,
+            (3, true) => u * 1e38,
+            (4, true) => u * 1e-38,
+            (5, true) => 0.0,
+            _ => u * 10.0,
+        }
+    };
+    let (mut n, mut hits) = (0, 0);
+    for k in 0..200_000 {
+        let odd = k % 3 == 0;
+        let v = |next: &mut dyn FnMut(bool) -> f32| Vec3::new(next(odd), next(odd), next(odd));
+        let (a, b) = (v(&mut next), v(&mut next));
+        let bx = Aabb { min: a.min(b), max: a.max(b) };
+        let ray = Ray { origin: v(&mut next), dir: v(&mut next), tmax: if k % 5 == 0 { next(odd).abs() } else { f32::INFINITY } };
+        let sr = SlabRay::new(&ray);
+        if sr.parallel || bx.is_empty() {
+            continue;
+        }
+        let want = sr.hit(&bx, ray.tmax).is_some();
+        assert_eq!(sr.enters(&bx, ray.tmax), want, "{ray:?} {bx:?}");
+        n += 1;
+        hits += want as u32;
+    }
+    assert!(n > 100_000 && hits > 10_000 && hits < n - 10_000, "{n} cases, {hits} entered");
 }
 
 /// The child-pair layout of the timed path holds every inner node's two children once, with the
