@@ -46,7 +46,7 @@ use crate::Memory;
 use bvhlab_bvh::{Bvh, CostParams, Node, Refs};
 use bvhlab_geom::{Aabb, Triangle, Vec3};
 use bvhlab_params::{Kind, Method, ParamSpec};
-use bvhlab_trace::fast::{Exact, SlabRay, TriTest, Watertight};
+use bvhlab_trace::fast::{Exact, Planes, SlabRay, TriTest, Watertight};
 use bvhlab_trace::packs::packs_for;
 use bvhlab_trace::{Hit, PackStore, Ray, RayBox, Stack, TraceStats, Tri4, SLAB_ROBUST};
 use serde::{Deserialize, Serialize};
@@ -715,13 +715,14 @@ impl<const W: usize> WideBox<W> for Scalar {
     #[inline(always)]
     unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; W]) -> u32 {
         let rows = unsafe { std::slice::from_raw_parts(rows, 6 * W) };
+        let Planes { near, far } = r.planes();
         let mut mask = 0;
         for (c, d) in dist.iter_mut().enumerate() {
             let t = |k: usize, a: usize| (rows[k * W + c] - r.origin[a]) * r.inv[a];
             let mx = |a: f32, b: f32| if a > b { a } else { b };
             let mn = |a: f32, b: f32| if a < b { a } else { b };
-            let near = mx(mx(t(r.near[0], 0), t(r.near[1], 1)), mx(t(r.near[2], 2), 0.0));
-            let far = mn(mn(t(r.far[0], 0), t(r.far[1], 1)), mn(t(r.far[2], 2), tmax)) * SLAB_ROBUST;
+            let near = mx(mx(t(near[0], 0), t(near[1], 1)), mx(t(near[2], 2), 0.0));
+            let far = mn(mn(t(far[0], 0), t(far[1], 1)), mn(t(far[2], 2), tmax)) * SLAB_ROBUST;
             *d = near;
             mask |= ((near <= far) as u32) << c;
         }
@@ -735,14 +736,24 @@ struct Sse4;
 impl WideBox<4> for Sse4 {
     #[inline(always)]
     unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; 4]) -> u32 {
-        use std::arch::x86_64::*;
+        unsafe { sse4_test(rows, r, r.planes(), tmax, dist) }
+    }
+}
+
+/// The 4-wide SSE box test with the plane rows given.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn sse4_test(rows: *const f32, r: &SlabRay, p: Planes, tmax: f32, dist: &mut [f32; 4]) -> u32 {
+    use std::arch::x86_64::*;
+    let Planes { near, far } = p;
+    {
         unsafe {
             let t = |k: usize, a: usize| {
                 _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(rows.add(k * 4)), _mm_set1_ps(r.origin[a])), _mm_set1_ps(r.inv[a]))
             };
-            let near = _mm_max_ps(_mm_max_ps(t(r.near[0], 0), t(r.near[1], 1)), _mm_max_ps(t(r.near[2], 2), _mm_setzero_ps()));
+            let near = _mm_max_ps(_mm_max_ps(t(near[0], 0), t(near[1], 1)), _mm_max_ps(t(near[2], 2), _mm_setzero_ps()));
             let far = _mm_mul_ps(
-                _mm_min_ps(_mm_min_ps(t(r.far[0], 0), t(r.far[1], 1)), _mm_min_ps(t(r.far[2], 2), _mm_set1_ps(tmax))),
+                _mm_min_ps(_mm_min_ps(t(far[0], 0), t(far[1], 1)), _mm_min_ps(t(far[2], 2), _mm_set1_ps(tmax))),
                 _mm_set1_ps(SLAB_ROBUST),
             );
             _mm_storeu_ps(dist.as_mut_ptr(), near);
@@ -760,19 +771,8 @@ impl<const OCT: usize> WideBox<4> for Sse4Vex<OCT> {
     const AVX2: bool = true;
     #[inline(always)]
     unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; 4]) -> u32 {
-        unsafe { Sse4::test(rows, &octant_rows::<OCT>(r), tmax, dist) }
-    }
-}
-
-/// `r` with its plane rows replaced by the constants of octant `OCT` (the same rows, as `r` is of
-/// that octant): inlined into a box test, the row loads get constant offsets.
-#[inline(always)]
-fn octant_rows<const OCT: usize>(r: &SlabRay) -> SlabRay {
-    debug_assert_eq!(r.near, [0, 1, 2].map(|a| oct_row(OCT, a, false)));
-    SlabRay {
-        near: [0, 1, 2].map(|a| oct_row(OCT, a, false)),
-        far: [0, 1, 2].map(|a| oct_row(OCT, a, true)),
-        ..*r
+        debug_assert_eq!(r.oct as usize, OCT);
+        unsafe { sse4_test(rows, r, Planes::of(OCT as u32), tmax, dist) }
     }
 }
 
@@ -785,7 +785,9 @@ impl<const OCT: usize> WideBox<8> for Avx8<OCT> {
     #[inline(always)]
     unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; 8]) -> u32 {
         use std::arch::x86_64::*;
-        let r = &octant_rows::<OCT>(r);
+        debug_assert_eq!(r.oct as usize, OCT);
+        // Constants once inlined: the row loads get constant offsets.
+        let Planes { near, far } = Planes::of(OCT as u32);
         unsafe {
             let t = |k: usize, a: usize| {
                 _mm256_mul_ps(
@@ -794,13 +796,13 @@ impl<const OCT: usize> WideBox<8> for Avx8<OCT> {
                 )
             };
             let near = _mm256_max_ps(
-                _mm256_max_ps(t(r.near[0], 0), t(r.near[1], 1)),
-                _mm256_max_ps(t(r.near[2], 2), _mm256_setzero_ps()),
+                _mm256_max_ps(t(near[0], 0), t(near[1], 1)),
+                _mm256_max_ps(t(near[2], 2), _mm256_setzero_ps()),
             );
             let far = _mm256_mul_ps(
                 _mm256_min_ps(
-                    _mm256_min_ps(t(r.far[0], 0), t(r.far[1], 1)),
-                    _mm256_min_ps(t(r.far[2], 2), _mm256_set1_ps(tmax)),
+                    _mm256_min_ps(t(far[0], 0), t(far[1], 1)),
+                    _mm256_min_ps(t(far[2], 2), _mm256_set1_ps(tmax)),
                 ),
                 _mm256_set1_ps(SLAB_ROBUST),
             );
@@ -915,17 +917,6 @@ macro_rules! by_octant {
 #[cfg(target_arch = "x86_64")]
 use by_octant;
 
-/// Row of the near (`far == false`) or far plane of axis `a` in octant `oct` (bit `a` set: the
-/// direction is negative along `a`, so the near plane is the box's max): rows are min.x, min.y,
-/// min.z, max.x, max.y, max.z.
-const fn oct_row(oct: usize, a: usize, far: bool) -> usize {
-    let neg = (oct >> a) & 1 == 1;
-    if neg != far {
-        a + 3
-    } else {
-        a
-    }
-}
 
 impl<N> View<'_, N> {
     /// Asks for the memory of a child pushed on the stack: a ray that misses everything below

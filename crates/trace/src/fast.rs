@@ -523,14 +523,13 @@ pub(crate) unsafe fn woop4(
     }
 }
 
-/// Per-ray box-test data: origin, inverse direction and, per axis, which of the six box
-/// coordinates (`[min.x, min.y, min.z, max.x, max.y, max.z]`) is the near plane.
+/// Per-ray box-test data: origin, inverse direction and the direction's octant, which gives per
+/// axis which of the six box coordinates (`[min.x, min.y, min.z, max.x, max.y, max.z]`) is the
+/// near plane ([`SlabRay::planes`]).
 #[derive(Clone, Copy, Debug)]
 pub struct SlabRay {
     pub origin: [f32; 3],
     pub inv: [f32; 3],
-    pub near: [usize; 3],
-    pub far: [usize; 3],
     /// Bit `a`: the direction is negative along axis `a` (the near plane is the box's max).
     pub oct: u32,
     /// Some inverse direction component is not finite or is zero (a zero, subnormal or infinite
@@ -538,7 +537,33 @@ pub struct SlabRay {
     pub parallel: bool,
 }
 
+/// Rows of the near and far plane per axis among a box's `[min.x, min.y, min.z, max.x, max.y,
+/// max.z]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Planes {
+    pub near: [usize; 3],
+    pub far: [usize; 3],
+}
+
+impl Planes {
+    /// The planes of octant `oct` (bit `a` set: negative along `a`, the near plane is the max).
+    #[inline(always)]
+    pub const fn of(oct: u32) -> Planes {
+        let n = [(oct & 1) as usize * 3, (oct >> 1 & 1) as usize * 3, (oct >> 2 & 1) as usize * 3];
+        Planes {
+            near: [n[0], 1 + n[1], 2 + n[2]],
+            far: [3 - n[0], 4 - n[1], 5 - n[2]],
+        }
+    }
+}
+
 impl SlabRay {
+    /// The ray's near and far plane rows.
+    #[inline(always)]
+    pub fn planes(&self) -> Planes {
+        Planes::of(self.oct)
+    }
+
     #[inline(always)]
     pub fn new(ray: &Ray) -> SlabRay {
         let d = ray.dir;
@@ -562,13 +587,10 @@ impl SlabRay {
             let oct = (0..3).map(|a| (inv[a].is_sign_negative() as u32) << a).sum();
             (inv, oct, ok)
         };
-        // For the rays that use them (finite nonzero inverse) the sign bit is `inv < 0`.
-        let n = [(oct & 1) as usize * 3, (oct >> 1 & 1) as usize * 3, (oct >> 2) as usize * 3];
+        // For the rays that use it (finite nonzero inverse) the sign bit is `inv < 0`.
         SlabRay {
             origin: ray.origin.to_array(),
             inv,
-            near: [n[0], 1 + n[1], 2 + n[2]],
-            far: [3 - n[0], 4 - n[1], 5 - n[2]],
             oct,
             // A zero (or subnormal) component has no finite inverse: (bound - origin) * inf is NaN
             // on a slab plane; an infinite one has inverse 0, and (inf bound - origin) * 0 is NaN.
@@ -612,9 +634,9 @@ impl SlabRay {
     pub fn hit(&self, b: &Aabb, tmax: f32) -> Option<f32> {
         let (o, i) = (self.origin, self.inv);
         let pick = |neg: bool, lo: f32, hi: f32| if neg { (hi, lo) } else { (lo, hi) };
-        let (nx, fx) = pick(self.near[0] == 3, b.min.x, b.max.x);
-        let (ny, fy) = pick(self.near[1] == 4, b.min.y, b.max.y);
-        let (nz, fz) = pick(self.near[2] == 5, b.min.z, b.max.z);
+        let (nx, fx) = pick(self.oct & 1 != 0, b.min.x, b.max.x);
+        let (ny, fy) = pick(self.oct & 2 != 0, b.min.y, b.max.y);
+        let (nz, fz) = pick(self.oct & 4 != 0, b.min.z, b.max.z);
         let near = fmax(
             fmax((nx - o[0]) * i[0], (ny - o[1]) * i[1]),
             fmax((nz - o[2]) * i[2], 0.0),
