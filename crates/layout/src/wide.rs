@@ -1039,6 +1039,18 @@ impl<N> View<'_, N> {
                         cur = code(m.trailing_zeros() as usize);
                         continue;
                     }
+                    // Two children (the commonest case after one): one comparison instead of
+                    // the insertion sort, in the sort's order (the nearer entered; on a tie the
+                    // higher slot, which the sort puts last).
+                    m if (m & (m - 1)) & (m & (m - 1)).wrapping_sub(1) == 0 => {
+                        let (a, b) = (m.trailing_zeros() as usize, (m & (m - 1)).trailing_zeros() as usize);
+                        let (near, far) = if dist[a] < dist[b] { (a, b) } else { (b, a) };
+                        let f = code(far);
+                        self.prefetch::<W>(f);
+                        stack.push((f, dist[far]));
+                        cur = code(near);
+                        continue;
+                    }
                     _ => {
                         let mut items = [(0u32, 0f32); W];
                         let mut n = 0;

@@ -508,9 +508,13 @@ pub(crate) unsafe fn woop4(
         let adet = _mm_andnot_ps(set(-0.0), det);
         let trusted = _mm_and_ps(_mm_cmpge_ps(adet, set(DET_MIN)), _mm_cmple_ps(adet, set(DET_MAX)));
         let fallback = (_mm_movemask_ps(on_edge) | (!_mm_movemask_ps(trusted) & 0xf)) & valid;
-        let neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(vv, zero)), _mm_cmplt_ps(w, zero));
-        let pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(vv, zero)), _mm_cmpgt_ps(w, zero));
-        let cand = !_mm_movemask_ps(_mm_and_ps(neg, pos)) & valid & !fallback;
+        // Mixed signs (some edge function < 0 and some > 0) miss: the least below 0 and the
+        // largest above 0. A lane with a NaN is in `fallback` (its det is NaN), so min / max
+        // need not see NaN as the comparisons would.
+        let lo = _mm_min_ps(_mm_min_ps(u, vv), w);
+        let hi = _mm_max_ps(_mm_max_ps(u, vv), w);
+        let mixed = _mm_and_ps(_mm_cmplt_ps(lo, zero), _mm_cmpgt_ps(hi, zero));
+        let cand = !_mm_movemask_ps(mixed) & valid & !fallback;
         let mut ts = [0f32; 4];
         if cand != 0 {
             let t = _mm_add_ps(
