@@ -31,10 +31,12 @@
 //! on the dragon is a cache miss per leaf); the (first slot, count, first pack) table `leaves`
 //! serves validation and the counters only.
 //!
-//! Timed traversal (AVX2): one instantiation of the walk per ray octant (the signs of the
-//! direction), so the box test's near and far rows are constants, as tinybvh's BVH8_CPU does; the
-//! leaf test is inlined into it; the root box is tested in one SSE pass. Callgrind on
-//! breakfast_room (2x10^6 rays): 1,242 M instructions before these three and the packs, 1,048 M after.
+//! Timed traversal (AVX2): the leaf test is inlined into the walk; the root box is tested in one
+//! SSE pass; a pushed child's prefetch address is picked without a branch; a node with two children
+//! hit needs no sort. Callgrind on breakfast_room (2x10^6 rays): 1,242 M instructions and 10.2 M
+//! mispredicted branches (branch simulation) before these and the packs, 985 M and 7.5 M after.
+//! Tried and dropped: one instantiation of the walk per ray octant (constant plane rows, as tinybvh's
+//! BVH8_CPU): the same instructions, and the jump to the octant's walk mispredicted 0.8 times per ray.
 //!
 //! Box test: one SIMD slab test of all children (AVX2 for 8 wide when the CPU has it, detected at
 //! run time; SSE for 4 wide, baseline on x86-64; a scalar loop otherwise), conservative like the
@@ -785,29 +787,26 @@ unsafe fn sse4_test(rows: *const f32, r: &SlabRay, p: Planes, tmax: f32, dist: &
 /// [`Sse4`] where the CPU has AVX2 (only instantiated in [`chunk_avx4`]): the same box test, and the
 /// leaves take the leaf test's AVX2 build.
 #[cfg(target_arch = "x86_64")]
-struct Sse4Vex<const OCT: usize>;
+struct Sse4Vex;
 #[cfg(target_arch = "x86_64")]
-impl<const OCT: usize> WideBox<4> for Sse4Vex<OCT> {
+impl WideBox<4> for Sse4Vex {
     const AVX2: bool = true;
     #[inline(always)]
     unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; 4]) -> u32 {
-        debug_assert_eq!(r.oct as usize, OCT);
-        unsafe { sse4_test(rows, r, Planes::of(OCT as u32), tmax, dist) }
+        unsafe { Sse4::test(rows, r, tmax, dist) }
     }
 }
 
-/// The 8-wide AVX2 box test for rays of octant `OCT` (its plane rows constants: [`by_octant`]).
 #[cfg(target_arch = "x86_64")]
-struct Avx8<const OCT: usize>;
+struct Avx8;
 #[cfg(target_arch = "x86_64")]
-impl<const OCT: usize> WideBox<8> for Avx8<OCT> {
+impl WideBox<8> for Avx8 {
     const AVX2: bool = true;
     #[inline(always)]
     unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; 8]) -> u32 {
         use std::arch::x86_64::*;
-        debug_assert_eq!(r.oct as usize, OCT);
-        // Constants once inlined: the row loads get constant offsets.
-        let Planes { near, far } = Planes::of(OCT as u32);
+        // The rows of the ray's planes (loop-invariant: computed once per ray in the walk).
+        let Planes { near, far } = r.planes();
         unsafe {
             let t = |k: usize, a: usize| {
                 _mm256_mul_ps(
@@ -891,7 +890,7 @@ unsafe fn chunk_avx8<T: TriTest, N: NodeSource<8>>(v: &View<N>, rays: &[Ray], hi
         return hits.fill(Hit::NONE);
     }
     for (h, r) in hits.iter_mut().zip(rays) {
-        *h = by_octant!(v, r, stack, 8, T, Avx8);
+        *h = v.one_checked::<8, T, Avx8>(r, stack);
     }
 }
 
@@ -904,38 +903,10 @@ unsafe fn chunk_avx4<T: TriTest, N: NodeSource<4>>(v: &View<N>, rays: &[Ray], hi
         return hits.fill(Hit::NONE);
     }
     for (h, r) in hits.iter_mut().zip(rays) {
-        *h = by_octant!(v, r, stack, 4, T, Sse4Vex);
+        *h = v.one_checked::<4, T, Sse4Vex>(r, stack);
     }
 }
 
-/// One ray through the walk instantiated for its octant (the signs of its inverse direction):
-/// the box test's near and far rows are then constants (tinybvh's BVH8_CPU specializes its
-/// traversal the same way), instead of per-ray row indices computed and carried through the walk.
-/// The caller has checked once that the tree has a root with a non-empty box ([`View::one`]'s
-/// other checks).
-#[cfg(target_arch = "x86_64")]
-macro_rules! by_octant {
-    ($v:expr, $r:expr, $stack:expr, $w:literal, $t:ty, $b:ident) => {{
-        let (v, r) = ($v, $r);
-        if !(r.tmax > 0.0) {
-            Hit::NONE
-        } else {
-            let sr = SlabRay::new(r);
-            match sr.oct {
-                0 => v.one_slab::<$w, $t, $b<0>, false>(r, &sr, $stack).0,
-                1 => v.one_slab::<$w, $t, $b<1>, false>(r, &sr, $stack).0,
-                2 => v.one_slab::<$w, $t, $b<2>, false>(r, &sr, $stack).0,
-                3 => v.one_slab::<$w, $t, $b<3>, false>(r, &sr, $stack).0,
-                4 => v.one_slab::<$w, $t, $b<4>, false>(r, &sr, $stack).0,
-                5 => v.one_slab::<$w, $t, $b<5>, false>(r, &sr, $stack).0,
-                6 => v.one_slab::<$w, $t, $b<6>, false>(r, &sr, $stack).0,
-                _ => v.one_slab::<$w, $t, $b<7>, false>(r, &sr, $stack).0,
-            }
-        }
-    }};
-}
-#[cfg(target_arch = "x86_64")]
-use by_octant;
 
 
 impl<N> View<'_, N> {
@@ -984,6 +955,19 @@ impl<N> View<'_, N> {
         }
         let sr = SlabRay::new(ray);
         self.one_slab::<W, T, B, STATS>(ray, &sr, stack)
+    }
+
+    /// [`Self::one`] (hits only) where the caller has checked once that the tree has a root with a
+    /// non-empty box.
+    #[inline(always)]
+    fn one_checked<const W: usize, T: TriTest, B: WideBox<W>>(&self, ray: &Ray, stack: &mut Stack) -> Hit
+    where
+        N: NodeSource<W>,
+    {
+        if !(ray.tmax > 0.0) {
+            return Hit::NONE;
+        }
+        self.one_slab::<W, T, B, false>(ray, &SlabRay::new(ray), stack).0
     }
 
     /// [`Self::one`] after its checks, with the ray's slab data.
