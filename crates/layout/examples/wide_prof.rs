@@ -1,5 +1,5 @@
-//! bvh8's (or bvh4's) timed traversal alone, for a profiler: `cargo run --release -p bvhlab-layout
-//! --example wide_prof -- [--runs N] [--width 4|8] SCENE`. Binned SAH (16 bins) and 10^6 random rays
+//! bvh8's (or bvh4's, bvh2's) timed traversal alone, for a profiler: `cargo run --release -p bvhlab-layout
+//! --example wide_prof -- [--runs N] [--width 2|4|8] SCENE`. Binned SAH (16 bins) and 10^6 random rays
 //! of the anchors' kind (seed 7, infinite tmax), as `bench_trace`; prints Mrays/s of each run.
 use bvhlab_builders::{binned_sah, TopDownConfig};
 use bvhlab_layout::wide::WideBvh;
@@ -11,11 +11,11 @@ fn main() {
     while let Some(a) = args.next() {
         match a.as_str() {
             "--runs" => runs = args.next().and_then(|v| v.parse().ok()).expect("--runs N"),
-            "--width" => width = args.next().and_then(|v| v.parse().ok()).expect("--width 4|8"),
+            "--width" => width = args.next().and_then(|v| v.parse().ok()).expect("--width 2|4|8"),
             _ => scene = Some(a),
         }
     }
-    let spec = scene.expect("usage: wide_prof [--runs N] [--width 4|8] SCENE");
+    let spec = scene.expect("usage: wide_prof [--runs N] [--width 2|4|8] SCENE");
     let scene = bvhlab_geom::load_scene(&spec).unwrap_or_else(|e| panic!("{spec}: {e}"));
     let (boxes, centers) = scene.boxes_and_centers();
     let bvh = binned_sah::build_with_options(&boxes, &centers, &binned_sah::BinnedOptions::new(16), &TopDownConfig::default());
@@ -25,9 +25,19 @@ fn main() {
         .into_iter()
         .map(|r| Ray { tmax: f32::INFINITY, ..r })
         .collect();
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
+    if width == 2 {
+        // bvh2's timed path (child pairs).
+        let f = bvhlab_trace::FastBvh2::new(&bvh, &scene.triangles);
+        for _ in 0..runs.max(1) + 1 {
+            let s = std::time::Instant::now();
+            std::hint::black_box(pool.install(|| f.hits(&rays)));
+            println!("bvh2: {:.2} Mrays/s", rays.len() as f64 / s.elapsed().as_secs_f64() * 1e-6);
+        }
+        return;
+    }
     let w = WideBvh::build(&bvh, width).expect("wide");
     let store = w.store(&scene.triangles);
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
     let hits = pool.install(|| w.hits(&store, &rays));
     println!("hit fraction {:.4}", hits.iter().filter(|h| h.is_hit()).count() as f64 / rays.len() as f64);
     if std::env::var_os("WIDE_PROF_STATS").is_some() {

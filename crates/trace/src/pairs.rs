@@ -143,6 +143,17 @@ pub(crate) fn pairs_one<T: TriTest>(
                 }
             } else {
                 let p = pairs.get_unchecked(child as usize);
+                // Both children's memory asked for before the box test needs this pair's boxes:
+                // the near child is read next, and its line is then on the way during the test.
+                for side in 0..2 {
+                    let (c, n) = (p.child[side], p.count[side]);
+                    let target = if n > 0 {
+                        tris.as_ptr().wrapping_add(c as usize) as *const i8
+                    } else {
+                        pairs.as_ptr().wrapping_add(c as usize) as *const i8
+                    };
+                    _mm_prefetch::<_MM_HINT_T0>(target);
+                }
                 let slab = |row: &[f32; 4], o: __m128, i: __m128| {
                     let t = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(row.as_ptr()), o), i);
                     let s = _mm_shuffle_ps::<0b01_00_11_10>(t, t);
