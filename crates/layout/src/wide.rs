@@ -730,7 +730,47 @@ trait WideBox<const W: usize> {
     unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; W]) -> u32;
     /// The test needs AVX2 (so the leaves may use their AVX2 build too).
     const AVX2: bool = false;
+    /// The slots of `mask` (the children hit) by descending entry distance, ties by ascending
+    /// slot, into `out`; returns how many. By insertion here.
+    ///
+    /// # Safety
+    /// The SIMD impls need their CPU feature.
+    #[inline(always)]
+    unsafe fn order(dist: &[f32; W], mask: u32, out: &mut [u8; W]) -> usize {
+        insertion_order(dist, mask, out)
+    }
 }
+
+/// [`WideBox::order`] by insertion: slots in ascending order, each placed after every slot with a
+/// larger or equal entry.
+#[inline(always)]
+fn insertion_order<const W: usize>(dist: &[f32; W], mask: u32, out: &mut [u8; W]) -> usize {
+    let (mut n, mut m) = (0, mask);
+    while m != 0 {
+        let i = m.trailing_zeros() as usize;
+        m &= m - 1;
+        let mut j = n;
+        while j > 0 && dist[out[j - 1] as usize] < dist[i] {
+            out[j] = out[j - 1];
+            j -= 1;
+        }
+        out[j] = i as u8;
+        n += 1;
+    }
+    n
+}
+
+/// Bits set in each byte value (a table: `count_ones` without the popcnt feature is a dozen
+/// instructions).
+const POPCOUNT8: [u8; 256] = {
+    let mut t = [0u8; 256];
+    let mut i = 0;
+    while i < 256 {
+        t[i] = (i as u32).count_ones() as u8;
+        i += 1;
+    }
+    t
+};
 
 struct Scalar;
 impl<const W: usize> WideBox<W> for Scalar {
@@ -802,6 +842,30 @@ struct Avx8;
 #[cfg(target_arch = "x86_64")]
 impl WideBox<8> for Avx8 {
     const AVX2: bool = true;
+    /// Each child's place by counting, with one 8-wide comparison, the children hit that come
+    /// before it (a larger entry, or an equal one in a lower slot): the same order as the
+    /// insertion sort without its data-dependent inner loop (18 % of the traversal's mispredicted
+    /// branches, callgrind's branch simulation on breakfast_room). Hit lanes have no NaN entry
+    /// (their `near <= far` held).
+    #[inline(always)]
+    unsafe fn order(dist: &[f32; 8], mask: u32, out: &mut [u8; 8]) -> usize {
+        use std::arch::x86_64::*;
+        unsafe {
+            let d8 = _mm256_loadu_ps(dist.as_ptr());
+            let (mut n, mut m) = (0, mask);
+            while m != 0 {
+                let i = m.trailing_zeros() as usize;
+                m &= m - 1;
+                let b = _mm256_set1_ps(dist[i]);
+                let gt = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(d8, b)) as u32 & mask;
+                let eq = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(d8, b)) as u32 & mask & ((1 << i) - 1);
+                let rank = POPCOUNT8[gt as usize] + POPCOUNT8[eq as usize];
+                *out.get_unchecked_mut((rank & 7) as usize) = i as u8;
+                n += 1;
+            }
+            n
+        }
+    }
     #[inline(always)]
     unsafe fn test(rows: *const f32, r: &SlabRay, tmax: f32, dist: &mut [f32; 8]) -> u32 {
         use std::arch::x86_64::*;
@@ -1052,27 +1116,15 @@ impl<N> View<'_, N> {
                         continue;
                     }
                     _ => {
-                        let mut items = [(0u32, 0f32); W];
-                        let mut n = 0;
-                        let mut m = mask;
-                        while m != 0 {
-                            let i = m.trailing_zeros() as usize;
-                            m &= m - 1;
-                            // Insertion by descending entry: the nearest ends up last.
-                            let e = (code(i), dist[i]);
-                            let mut j = n;
-                            while j > 0 && items[j - 1].1 < e.1 {
-                                items[j] = items[j - 1];
-                                j -= 1;
-                            }
-                            items[j] = e;
-                            n += 1;
+                        // By descending entry: the nearest ends up last, and is entered.
+                        let mut ord = [0u8; W];
+                        let n = B::order(&dist, mask, &mut ord);
+                        for &i in &ord[..n - 1] {
+                            let c = code(i as usize);
+                            self.prefetch::<W>(c);
+                            stack.push((c, dist[i as usize]));
                         }
-                        for &it in &items[..n - 1] {
-                            self.prefetch::<W>(it.0);
-                            stack.push(it);
-                        }
-                        cur = items[n - 1].0;
+                        cur = code(ord[n - 1] as usize);
                         continue;
                     }
                 }
@@ -1104,12 +1156,22 @@ impl<N> View<'_, N> {
 /// A box test over a node given its rows (the traversal masks the slots not in use).
 trait BoxSel<const W: usize> {
     fn sel(rows: &[f32], sr: &SlabRay, rb: Option<&RayBox>, tmax: f32, dist: &mut [f32; W]) -> u32;
+    /// See [`WideBox::order`].
+    #[inline(always)]
+    fn order(dist: &[f32; W], mask: u32, out: &mut [u8; W]) -> usize {
+        insertion_order(dist, mask, out)
+    }
     /// See [`WideBox::AVX2`].
     const AVX2: bool = false;
 }
 
 impl<const W: usize, B: WideBox<W>> BoxSel<W> for B {
     const AVX2: bool = B::AVX2;
+    #[inline(always)]
+    fn order(dist: &[f32; W], mask: u32, out: &mut [u8; W]) -> usize {
+        // SAFETY: as `sel`: a SIMD `B` runs only after its CPU feature was found.
+        unsafe { B::order(dist, mask, out) }
+    }
     #[inline(always)]
     fn sel(rows: &[f32], sr: &SlabRay, _: Option<&RayBox>, tmax: f32, dist: &mut [f32; W]) -> u32 {
         debug_assert!(rows.len() >= 6 * W);
@@ -1139,5 +1201,38 @@ impl<const W: usize> BoxSel<W> for Parallel {
             }
         }
         mask
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The AVX2 ordering of the children hit is the insertion sort's, ties included (equal
+    /// entries are common: rays starting inside several boxes enter them all at 0).
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn counted_order_equals_the_insertion_sort() {
+        if !std::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for _ in 0..100_000 {
+            let r = next();
+            // Few distinct values, so that ties are frequent.
+            let dist: [f32; 8] = std::array::from_fn(|i| [0.0, 0.5, 1.0, 2.5, f32::INFINITY][((r >> (3 * i)) % 5) as usize]);
+            let mask = (next() & 0xff) as u32;
+            let (mut a, mut b) = ([0u8; 8], [0u8; 8]);
+            let n = insertion_order(&dist, mask, &mut a);
+            // SAFETY: AVX2 was detected.
+            let m = unsafe { <Avx8 as WideBox<8>>::order(&dist, mask, &mut b) };
+            assert_eq!((n, &a[..n]), (m, &b[..m]), "{dist:?} {mask:#b}");
+        }
     }
 }
