@@ -317,8 +317,11 @@ impl NodeSource<8> for CwBvh {
         Some((&buf[..], node.used()))
     }
     #[inline(always)]
-    fn code(&self, n: usize, slot: usize) -> u32 {
-        self.nodes[n].code(slot)
+    unsafe fn code(&self, n: usize, slot: usize) -> u32 {
+        debug_assert!(n < self.nodes.len() && slot < 8);
+        // SAFETY: the caller read node `n` (`node` returned Some); `CwNode::code` indexes `meta`
+        // with `slot < 8`.
+        unsafe { self.nodes.get_unchecked(n) }.code(slot)
     }
     #[inline(always)]
     fn first(&self, code: u32) -> Option<usize> {
