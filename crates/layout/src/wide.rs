@@ -819,19 +819,28 @@ unsafe fn sse4_order(dist: &[f32; 4], mask: u32, out: &mut [u8; 4]) -> usize {
     use std::arch::x86_64::*;
     unsafe {
         let d4 = _mm_loadu_ps(dist.as_ptr());
-        let (mut n, mut m) = (0, mask);
-        while m != 0 {
-            let i = m.trailing_zeros() as usize;
-            m &= m - 1;
-            let b = _mm_set1_ps(dist[i]);
-            let gt = _mm_movemask_ps(_mm_cmpgt_ps(d4, b)) as u32 & mask;
-            let eq = _mm_movemask_ps(_mm_cmpeq_ps(d4, b)) as u32 & mask & ((1 << i) - 1);
-            let rank = POPCOUNT8[gt as usize] + POPCOUNT8[eq as usize];
-            *out.get_unchecked_mut((rank & 3) as usize) = i as u8;
-            n += 1;
-        }
-        n
+        counted_order(dist, mask, out, |d| {
+            let b = _mm_set1_ps(d);
+            (_mm_movemask_ps(_mm_cmpgt_ps(d4, b)) as u32, _mm_movemask_ps(_mm_cmpeq_ps(d4, b)) as u32)
+        })
     }
+}
+
+/// The slots of `mask` by descending entry, ties by ascending slot, each placed at the number of
+/// children hit before it: `cmp(d)` gives the lanes whose entry is greater than `d` and equal to it.
+#[inline(always)]
+fn counted_order<const W: usize>(dist: &[f32; W], mask: u32, out: &mut [u8; W], cmp: impl Fn(f32) -> (u32, u32)) -> usize {
+    let (mut n, mut m) = (0, mask);
+    while m != 0 {
+        let i = m.trailing_zeros() as usize;
+        m &= m - 1;
+        let (gt, eq) = cmp(dist[i]);
+        let rank = POPCOUNT8[(gt & mask & 0xff) as usize] + POPCOUNT8[(eq & mask & ((1 << i) - 1) & 0xff) as usize];
+        // A rank is below the count of children hit (no NaN entry among them), so below W.
+        out[rank as usize % W] = i as u8;
+        n += 1;
+    }
+    n
 }
 
 /// The 4-wide SSE box test with the plane rows given.
@@ -888,18 +897,11 @@ impl WideBox<8> for Avx8 {
         use std::arch::x86_64::*;
         unsafe {
             let d8 = _mm256_loadu_ps(dist.as_ptr());
-            let (mut n, mut m) = (0, mask);
-            while m != 0 {
-                let i = m.trailing_zeros() as usize;
-                m &= m - 1;
-                let b = _mm256_set1_ps(dist[i]);
-                let gt = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(d8, b)) as u32 & mask;
-                let eq = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(d8, b)) as u32 & mask & ((1 << i) - 1);
-                let rank = POPCOUNT8[gt as usize] + POPCOUNT8[eq as usize];
-                *out.get_unchecked_mut((rank & 7) as usize) = i as u8;
-                n += 1;
-            }
-            n
+            counted_order(dist, mask, out, |d| {
+                let b = _mm256_set1_ps(d);
+                let gt = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(d8, b)) as u32;
+                (gt, _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(d8, b)) as u32)
+            })
         }
     }
     #[inline(always)]
