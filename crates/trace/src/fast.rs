@@ -33,9 +33,10 @@ use rayon::prelude::*;
 pub struct WTri {
     pub v: [[f32; 3]; 3],
     pub prim: u32,
-    /// Nonzero on the last triangle of a leaf ([`TriStore::with_leaves`]): a wide layout's leaf
-    /// child names its first slot only, and its triangles run to this mark (as Embree marks the
-    /// last primitive of a leaf), so a leaf visit reads no leaf table before its triangles.
+    /// Nonzero on the last triangle of a leaf ([`TriStore::with_leaves`]): a leaf test given the
+    /// store from a leaf's first slot on stops at this mark (as Embree marks the last primitive of
+    /// a leaf). The wide layouts now keep their leaves in packs ([`crate::packs`], the same mark
+    /// as an END bit); bvh2 passes each leaf's exact slice and needs no mark.
     pub last: u32,
     /// Zero. Explicit so that the four-wide test's 16-byte loads read no padding.
     pub pad: u32,
@@ -45,8 +46,6 @@ pub struct WTri {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TriStore {
     pub tris: Vec<WTri>,
-    /// Leaf ends are marked (`WTri::last`): what the wide layouts' traversals need.
-    pub leaf_ends: bool,
 }
 
 impl TriStore {
@@ -70,10 +69,7 @@ impl TriStore {
                 },
             })
             .collect();
-        TriStore {
-            tris,
-            leaf_ends: false,
-        }
+        TriStore { tris }
     }
 
     /// [`TriStore::new`] with the last slot of every leaf (`[first, count]` ranges of slots)
@@ -87,7 +83,6 @@ impl TriStore {
                 s.tris[end - 1].last = 1;
             }
         }
-        s.leaf_ends = true;
         s
     }
 }
@@ -455,20 +450,7 @@ unsafe fn watertight4<const KX: usize, const KY: usize, const KZ: usize>(
         let done = (lanes, ends != 0);
         // Columns picked by the constant axis order (from registers).
         let axes = [KX, KY, KZ];
-        let (mut cand, fallback, ts) = woop4(r, |i, j| v[i][axes[j]], valid);
-        while cand != 0 {
-            let l = cand.trailing_zeros() as usize;
-            cand &= cand - 1;
-            accept(ts[l], q[l].prim, best);
-        }
-        let mut fb = fallback;
-        while fb != 0 {
-            let l = fb.trailing_zeros() as usize;
-            fb &= fb - 1;
-            if let Some(t) = intersect_watertight(r, &q[l]) {
-                accept(t, q[l].prim, best);
-            }
-        }
+        woop4(r, |i, j| v[i][axes[j]], valid, |l| q[l].prim, |l| q[l], best);
         done
     }
 }
@@ -476,16 +458,20 @@ unsafe fn watertight4<const KX: usize, const KY: usize, const KZ: usize>(
 /// The four-lane core of the watertight test (Woop et al. 2013, fig. 6) shared by the AoS leaf test
 /// ([`watertight4`]) and the packs ([`crate::packs`]): `row(i, j)` gives coordinate `r.k[j]` of
 /// vertex `i` of the four triangles. The same f32 operations in the same order per lane as
-/// [`intersect_watertight`], so the same values. Returns the lanes of `valid` that hit (their
-/// distances in `ts`, unchecked against the ray's range: [`accept`] does that) and the lanes of
-/// `valid` that need the one-triangle test's f64 fallback (an edge function 0, |det| untrusted).
+/// [`intersect_watertight`], so the same values. The lanes of `valid` that hit are accepted into
+/// `best` with scene index `prim(l)` ([`accept`] checks the ray's range); those that need the
+/// one-triangle test's f64 fallback (an edge function 0, |det| untrusted) go through it with
+/// `tri(l)`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) unsafe fn woop4(
     r: &WoopRay,
     row: impl Fn(usize, usize) -> std::arch::x86_64::__m128,
     valid: i32,
-) -> (i32, i32, [f32; 4]) {
+    prim: impl Fn(usize) -> u32,
+    tri: impl Fn(usize) -> WTri,
+    best: &mut Hit,
+) {
     use std::arch::x86_64::*;
     unsafe {
         let set = _mm_set1_ps;
@@ -514,16 +500,29 @@ pub(crate) unsafe fn woop4(
         let lo = _mm_min_ps(_mm_min_ps(u, vv), w);
         let hi = _mm_max_ps(_mm_max_ps(u, vv), w);
         let mixed = _mm_and_ps(_mm_cmplt_ps(lo, zero), _mm_cmpgt_ps(hi, zero));
-        let cand = !_mm_movemask_ps(mixed) & valid & !fallback;
-        let mut ts = [0f32; 4];
+        let mut cand = !_mm_movemask_ps(mixed) & valid & !fallback;
         if cand != 0 {
             let t = _mm_add_ps(
                 _mm_add_ps(_mm_mul_ps(u, _mm_mul_ps(sz, az)), _mm_mul_ps(vv, _mm_mul_ps(sz, bz))),
                 _mm_mul_ps(w, _mm_mul_ps(sz, cz)),
             );
+            let mut ts = [0f32; 4];
             _mm_storeu_ps(ts.as_mut_ptr(), _mm_div_ps(t, det));
+            while cand != 0 {
+                let l = cand.trailing_zeros() as usize;
+                cand &= cand - 1;
+                accept(ts[l], prim(l), best);
+            }
         }
-        (cand, fallback, ts)
+        let mut fb = fallback;
+        while fb != 0 {
+            let l = fb.trailing_zeros() as usize;
+            fb &= fb - 1;
+            let t = tri(l);
+            if let Some(d) = intersect_watertight(r, &t) {
+                accept(d, t.prim, best);
+            }
+        }
     }
 }
 

@@ -7,7 +7,7 @@
 //! A leaf is a run of packs: its triangles fill them in order, the last one's prim index carries
 //! [`END`], and the lanes after it (in the leaf's last pack) are never tested. A wide layout names
 //! a leaf by its first pack (`PackStore::new` lays out each leaf at the pack index given).
-use crate::fast::{intersect_watertight, WTri, WoopRay};
+use crate::fast::{WTri, WoopRay};
 use crate::{accept, Hit};
 use bvhlab_geom::Triangle;
 
@@ -143,26 +143,13 @@ unsafe fn watertight_pack(r: &WoopRay, q: &Tri4, best: &mut Hit) -> (u32, bool) 
         let done = (lanes, ends != 0);
         // Rows picked by the ray's axis order: one load each (the index is an address offset).
         let k = r.k;
-        let (mut cand, fallback, ts) = woop4(r, |i, j| _mm_load_ps(q.v[i][k[j]].as_ptr()), valid);
-        while cand != 0 {
-            let l = cand.trailing_zeros() as usize;
-            cand &= cand - 1;
-            accept(ts[l], q.prim[l] & !END, best);
-        }
-        let mut fb = fallback;
-        while fb != 0 {
-            let l = fb.trailing_zeros() as usize;
-            fb &= fb - 1;
-            let tri = q.lane(l);
-            if let Some(t) = intersect_watertight(r, &tri) {
-                accept(t, tri.prim, best);
-            }
-        }
+        woop4(r, |i, j| _mm_load_ps(q.v[i][k[j]].as_ptr()), valid, |l| q.prim[l] & !END, |l| q.lane(l), best);
         done
     }
 }
 
-/// [`watertight_packs`] in its baseline (SSE) build, not inlined (as the AVX2 one).
+/// [`watertight_packs`] in its baseline (SSE) build, as a call of its own (the AVX2 walks inline
+/// `watertight_packs` instead: `Watertight::test_packs_avx2`).
 #[cfg(target_arch = "x86_64")]
 #[inline(never)]
 pub(crate) fn watertight_packs_sse(r: &WoopRay, packs: &[Tri4], best: &mut Hit) -> u32 {
