@@ -42,7 +42,7 @@ ratio() { awk -v a="$1" -v b="$2" 'BEGIN { if (a == "" || b == "" || b + 0 == 0)
 # Our table: one row per JSON line; ratio to Embree's binned SAH when $2 (its median ms) is given.
 table() {
   local lines=$1 emb_ms=${2:-} emb_sah=${3:-}
-  printf '\n%-20s %3s %10s %9s %9s %9s %10s %7s %9s %8s %17s\n' builder thr total_ms encode build collapse embree_bin ratio sah_cost emb_sah bvh_fnv
+  printf '\n%-20s %3s %10s %9s %9s %10s %7s %9s %8s %17s\n' builder thr total_ms encode build embree_bin ratio sah_cost emb_sah bvh_fnv
   while IFS= read -r line; do
     [[ -z "$line" ]] && continue
     local name thr
@@ -54,9 +54,9 @@ table() {
     fi
     local ms
     ms=$(field "$line" build_ms_median)
-    printf '%-20s %3s %10s %9s %9s %9s %10s %7s %9s %8s %17s\n' "$name" "$thr" "$ms" \
+    printf '%-20s %3s %10s %9s %9s %10s %7s %9s %8s %17s\n' "$name" "$thr" "$ms" \
       "$(field "$line" encode_ms_median)" "$(field "$line" build_part_ms_median)" \
-      "$(field "$line" collapse_ms_median)" "${emb_ms:--}" "$(ratio "$ms" "$emb_ms")" \
+      "${emb_ms:--}" "$(ratio "$ms" "$emb_ms")" \
       "$(field "$line" sah_cost)" "${emb_sah:--}" "$(sfield "$line" bvh_fnv)"
   done <<<"$lines"
 }

@@ -10,9 +10,10 @@
 //! `runs` times.
 //!
 //! The Morton-family times are the whole pipeline from boxes to a compacted tree: encode (Morton
-//! codes + sort, `bvhlab_morton::encode` with each builder's paper default bits), the bottom-up
-//! build, and the SAH compaction (`bvhlab_bvh::collapse`, thesis 3.6); `build_ms_median` is the
-//! median of the per-run totals and the three parts are reported separately (each its own median).
+//! codes + sort, `bvhlab_morton::encode` with each builder's paper default bits), and the bottom-up
+//! build with its SAH compaction (thesis 3.6; `build_compacted`, which compacts the cluster tree
+//! directly, as the pipeline does, so it has no time of its own); `build_ms_median` is the median of the per-run totals and the parts are reported
+//! separately (each its own median).
 //! One JSON line per builder with the eq. 4 SAH cost (c_T = 3, c_I = 2) of the final tree and
 //! `bvh_fnv`, a hash of its canonical bytes (equal hashes = identical trees, e.g. the parallel
 //! binned SAH vs the sequential one). A builder that panics (not implemented yet) gets an `error`
@@ -24,9 +25,9 @@ use bvhlab_builders::ploc::PlocConfig;
 use bvhlab_builders::{
     aac, binned_sah, lbvh, ploc, spatial_median, sweep_sah, SortedCodes, TopDownConfig,
 };
-use bvhlab_bvh::{collapse::collapse, metrics, validate, Aabb, Bvh, CostParams, Vec3};
+use bvhlab_bvh::{metrics, validate, Aabb, Bvh, CostParams, Vec3};
 use bvhlab_geom::stats::{median, min_max};
-use bvhlab_morton::{AutoFor, Bits, EncodeConfig};
+use bvhlab_morton::{AutoFor, Bits, EncodeConfig, Encoding};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::time::Instant;
 
@@ -47,13 +48,12 @@ pub(crate) const ALL: [&str; 14] = [
     "bonsai-bp2",
 ];
 
-/// Milliseconds of one run, split into the pipeline parts (encode and collapse are 0 for the
-/// top-down builders, which take boxes and centres directly and make multi-primitive leaves).
+/// Milliseconds of one run, split into the pipeline parts (encode is 0 for the top-down builders,
+/// which take boxes and centres directly and make multi-primitive leaves).
 #[derive(Clone, Copy, Default)]
 pub(crate) struct Parts {
     encode: f64,
     build: f64,
-    collapse: f64,
 }
 
 fn ms_since(t: Instant) -> f64 {
@@ -116,6 +116,21 @@ pub(crate) fn run(
         p.build = ms_since(t);
         return (bvh, p);
     }
+    assert!(BOTTOM_UP.contains(&name), "unknown builder {name}");
+    let t = Instant::now();
+    let enc = encode_for(name, boxes, centers);
+    p.encode = ms_since(t);
+    let t = Instant::now();
+    let bvh = bottom_up(name, boxes, &enc, cfg.cost);
+    p.build = ms_since(t);
+    (bvh, p)
+}
+
+/// The builders over Morton codes ([`encode_for`], [`bottom_up`]).
+pub(crate) const BOTTOM_UP: [&str; 6] = ["lbvh", "aac-hq", "aac-fast", "ploc-10", "ploc-25", "ploc-100"];
+
+/// The Morton codes a bottom-up builder runs on (each builder's paper default bits).
+pub(crate) fn encode_for(name: &str, boxes: &[Aabb], centers: &[Vec3]) -> Encoding {
     let auto = match name {
         "lbvh" => AutoFor::Lbvh,
         "aac-hq" | "aac-fast" => AutoFor::Aac,
@@ -125,29 +140,25 @@ pub(crate) fn run(
         bits: Bits::Auto(auto),
         ..Default::default()
     };
-    let t = Instant::now();
-    let enc = bvhlab_morton::encode(boxes, centers, &enc_cfg);
-    p.encode = ms_since(t);
+    bvhlab_morton::encode(boxes, centers, &enc_cfg)
+}
+
+/// A bottom-up builder with its SAH compaction, over codes (no centres).
+pub(crate) fn bottom_up(name: &str, boxes: &[Aabb], enc: &Encoding, cost: CostParams) -> Bvh {
     let sorted = SortedCodes {
         order: &enc.order,
         codes: &enc.codes,
         code_bits: enc.code_bits,
     };
-    let t = Instant::now();
-    let bvh = match name {
-        "lbvh" => lbvh::build(boxes, &sorted),
-        "aac-hq" => aac::build(boxes, &sorted, &AacConfig::HQ),
-        "aac-fast" => aac::build(boxes, &sorted, &AacConfig::FAST),
-        "ploc-10" => ploc::build(boxes, &sorted, &PlocConfig { radius: 10 }),
-        "ploc-25" => ploc::build(boxes, &sorted, &PlocConfig { radius: 25 }),
-        "ploc-100" => ploc::build(boxes, &sorted, &PlocConfig { radius: 100 }),
+    match name {
+        "lbvh" => lbvh::build_compacted(boxes, &sorted, cost),
+        "aac-hq" => aac::build_compacted(boxes, &sorted, &AacConfig::HQ, cost),
+        "aac-fast" => aac::build_compacted(boxes, &sorted, &AacConfig::FAST, cost),
+        "ploc-10" => ploc::build_compacted(boxes, &sorted, &PlocConfig { radius: 10 }, cost),
+        "ploc-25" => ploc::build_compacted(boxes, &sorted, &PlocConfig { radius: 25 }, cost),
+        "ploc-100" => ploc::build_compacted(boxes, &sorted, &PlocConfig { radius: 100 }, cost),
         other => unreachable!("unknown builder {other}"),
-    };
-    p.build = ms_since(t);
-    let t = Instant::now();
-    let bvh = collapse(&bvh, cfg.cost);
-    p.collapse = ms_since(t);
-    (bvh, p)
+    }
 }
 
 /// `binned-sah:k=v:k=v...` (keys bins, axes = largest | all, leaf, stop = split-axis | any-axis,
@@ -273,20 +284,18 @@ fn main() {
         }
         let total: Vec<f64> = parts
             .iter()
-            .map(|p| p.encode + p.build + p.collapse)
+            .map(|p| p.encode + p.build)
             .collect();
         let enc: Vec<f64> = parts.iter().map(|p| p.encode).collect();
         let bld: Vec<f64> = parts.iter().map(|p| p.build).collect();
-        let col: Vec<f64> = parts.iter().map(|p| p.collapse).collect();
         let total_med = median(&total);
         let valid = validate(&bvh, &boxes).err().unwrap_or_else(|| "ok".into());
         let m = metrics(&bvh, cost);
         println!(
-            "{{{head},\"build_ms_median\":{total_med:.2},\"build_ms_min\":{:.2},\"encode_ms_median\":{:.2},\"build_part_ms_median\":{:.2},\"collapse_ms_median\":{:.2},\"sah_cost\":{:.3},\"leaves\":{},\"refs_per_leaf\":{:.3},\"depth\":{},\"bvh_fnv\":\"{:016x}\",\"deterministic\":{deterministic},\"valid\":{valid:?}}}",
+            "{{{head},\"build_ms_median\":{total_med:.2},\"build_ms_min\":{:.2},\"encode_ms_median\":{:.2},\"build_part_ms_median\":{:.2},\"sah_cost\":{:.3},\"leaves\":{},\"refs_per_leaf\":{:.3},\"depth\":{},\"bvh_fnv\":\"{:016x}\",\"deterministic\":{deterministic},\"valid\":{valid:?}}}",
             min_max(total.iter().copied()).0,
             median(&enc),
             median(&bld),
-            median(&col),
             m.sah_cost,
             m.leaves,
             m.refs_per_leaf,

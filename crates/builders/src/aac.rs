@@ -23,10 +23,10 @@
 //! (Gu et al.'s suggested scheme: each task has its own cluster array and matrix; results are united
 //! at the higher levels). A task's merges are appended in post order with its inner-node ids shifted
 //! by the merges before it, so the output is the sequential one, bit for bit, at any thread count.
-use crate::bottomup::{to_bvh, ClusterTree};
+use crate::bottomup::{finish, ClusterTree};
 use crate::simd_box::BoxA;
 use crate::sorted::SortedCodes;
-use bvhlab_bvh::{Aabb, Bvh};
+use bvhlab_bvh::{Aabb, Bvh, CostParams};
 use bvhlab_params::{fmt_f32, Kind, Method, ParamSpec, Params, Read};
 use glam::Vec3A;
 use serde::{Deserialize, Serialize};
@@ -133,6 +133,16 @@ pub const PAR_MIN: usize = 1 << 12;
 
 /// One primitive per leaf; the caller applies the SAH compaction.
 pub fn build(boxes: &[Aabb], sorted: &SortedCodes, cfg: &AacConfig) -> Bvh {
+    build_in(boxes, sorted, cfg, None)
+}
+
+/// [`build`] followed by the SAH compaction (`bvhlab_bvh::collapse`), the same bytes, without the
+/// uncompacted layout in memory.
+pub fn build_compacted(boxes: &[Aabb], sorted: &SortedCodes, cfg: &AacConfig, cost: CostParams) -> Bvh {
+    build_in(boxes, sorted, cfg, Some(cost))
+}
+
+fn build_in(boxes: &[Aabb], sorted: &SortedCodes, cfg: &AacConfig, cost: Option<CostParams>) -> Bvh {
     let n = sorted.len("aac");
     assert!(n <= boxes.len(), "aac: more sorted primitives than boxes");
     if n == 0 {
@@ -149,8 +159,11 @@ pub fn build(boxes: &[Aabb], sorted: &SortedCodes, cfg: &AacConfig) -> Bvh {
     ctx.reduce(root, 1);
     debug_assert_eq!(ctx.merges.len(), n - 1);
     let root = ctx.id[0];
-    let tree = ClusterTree { leaf_prims: sorted.order, children: &ctx.merges, root };
-    to_bvh(boxes, &tree)
+    // Only the merges are needed from here on.
+    let merges = std::mem::take(&mut ctx.merges);
+    drop(ctx);
+    let tree = ClusterTree { leaf_prims: sorted.order, children: &merges, root };
+    finish(boxes, &tree, cost)
 }
 
 /// Reduction function `f(x) = c x^alpha` of Gu et al. 2013, truncated to an integer, at least 1.

@@ -1,8 +1,9 @@
 //! Shared output step of the bottom-up builders (lbvh, aac, ploc): a cluster tree given as merges
 //! becomes the flat [`Bvh`] layout every stage uses (root at 0, sibling pairs adjacent, depth-first
-//! with left subtrees first, one primitive per leaf). The SAH compaction that the thesis runs after
-//! every bottom-up build (3.2.2, 3.6.1) is applied by the caller (`bvhlab_bvh::collapse`).
-use bvhlab_bvh::{Aabb, Bvh, Node};
+//! with left subtrees first, one primitive per leaf), or directly its SAH compaction, which the
+//! thesis runs after every bottom-up build (3.2.2, 3.6.1): [`collapse_tree`].
+use bvhlab_bvh::collapse::{collapse_from, CollapseSource};
+use bvhlab_bvh::{Aabb, Bvh, CostParams, Node};
 
 /// The result of agglomerative clustering. Node ids `0..leaf_prims.len()` are leaves (leaf `i`
 /// holds primitive `leaf_prims[i]`); id `leaf_prims.len() + j` is the inner node whose children are
@@ -55,6 +56,70 @@ pub fn to_bvh(boxes: &[Aabb], tree: &ClusterTree) -> Bvh {
         }
     }
     Bvh { nodes, prim_indices }
+}
+
+/// A builder's output from its cluster tree: the layout of single-triangle leaves ([`to_bvh`]), or
+/// with `cost` its SAH compaction ([`collapse_tree`]).
+pub(crate) fn finish(boxes: &[Aabb], tree: &ClusterTree, cost: Option<CostParams>) -> Bvh {
+    match cost {
+        Some(c) => collapse_tree(boxes, tree, c),
+        None => to_bvh(boxes, tree),
+    }
+}
+
+/// `collapse(&to_bvh(boxes, tree), cost)`, the same bytes, without the single-triangle layout in
+/// between: the compaction reads the cluster tree and its inner boxes (24 bytes per triangle, where
+/// the layout took 64 and lived beside the compacted copy: the Morton builders' memory peak,
+/// issue 19.4).
+pub fn collapse_tree(boxes: &[Aabb], tree: &ClusterTree, cost: CostParams) -> Bvh {
+    let n = tree.leaf_prims.len();
+    if n == 0 {
+        return Bvh::default();
+    }
+    debug_assert_eq!(tree.children.len(), n - 1);
+    let mut src = WithBounds { boxes, tree, inner: vec![Aabb::EMPTY; n - 1] };
+    // Every primitive is in exactly one leaf (the codes' order is a permutation).
+    collapse_from(&mut src, false, cost)
+}
+
+/// A cluster tree with its inner boxes (filled by [`CollapseSource::refit`] as the compaction's
+/// post-order reaches them), as [`collapse_from`] reads trees.
+struct WithBounds<'a> {
+    boxes: &'a [Aabb],
+    tree: &'a ClusterTree<'a>,
+    inner: Vec<Aabb>,
+}
+
+impl CollapseSource for WithBounds<'_> {
+    fn id_count(&self) -> usize {
+        2 * self.tree.leaf_prims.len() - 1
+    }
+    fn root(&self) -> u32 {
+        self.tree.root
+    }
+    #[inline]
+    fn bounds(&self, id: u32) -> Aabb {
+        let (id, n) = (id as usize, self.tree.leaf_prims.len());
+        if id < n { self.boxes[self.tree.leaf_prims[id] as usize] } else { self.inner[id - n] }
+    }
+    #[inline]
+    fn children(&self, id: u32) -> Option<[u32; 2]> {
+        (id as usize).checked_sub(self.tree.leaf_prims.len()).map(|k| self.tree.children[k])
+    }
+    #[inline]
+    fn prims(&self, id: u32) -> &[u32] {
+        std::slice::from_ref(&self.tree.leaf_prims[id as usize])
+    }
+    fn reference_count(&self) -> usize {
+        self.tree.leaf_prims.len()
+    }
+    /// The left child's box grown by the right one's, as [`to_bvh`] refits.
+    fn refit(&mut self, id: u32, left: &Aabb, right: &Aabb) -> Aabb {
+        let mut b = *left;
+        b.grow(right);
+        self.inner[id as usize - self.tree.leaf_prims.len()] = b;
+        b
+    }
 }
 
 #[cfg(test)]

@@ -4,9 +4,9 @@
 //! key `i`; its direction, the far end of the range and its split are found from the common-prefix
 //! length `delta` alone (Karras 2012 section 3, figure 4), so every internal node is computed
 //! independently (here with rayon) and the output does not depend on the thread count.
-use crate::bottomup::{to_bvh, ClusterTree};
+use crate::bottomup::{finish, ClusterTree};
 use crate::sorted::SortedCodes;
-use bvhlab_bvh::{Aabb, Bvh};
+use bvhlab_bvh::{Aabb, Bvh, CostParams};
 use bvhlab_params::Method;
 
 pub const METHOD: Method = Method::new(
@@ -22,6 +22,16 @@ const GRAIN: usize = 4096;
 
 /// One primitive per leaf; the caller applies the SAH compaction.
 pub fn build(boxes: &[Aabb], sorted: &SortedCodes) -> Bvh {
+    build_in(boxes, sorted, None)
+}
+
+/// [`build`] followed by the SAH compaction (`bvhlab_bvh::collapse`), the same bytes, without the
+/// uncompacted layout in memory.
+pub fn build_compacted(boxes: &[Aabb], sorted: &SortedCodes, cost: CostParams) -> Bvh {
+    build_in(boxes, sorted, Some(cost))
+}
+
+fn build_in(boxes: &[Aabb], sorted: &SortedCodes, cost: Option<CostParams>) -> Bvh {
     let n = sorted.len("lbvh");
     if n == 0 {
         return Bvh::default();
@@ -36,7 +46,7 @@ pub fn build(boxes: &[Aabb], sorted: &SortedCodes) -> Bvh {
     // internal node 0 (Karras 2012 section 3), or leaf 0 when there is only one primitive.
     let root = if n == 1 { 0 } else { n as u32 };
     let tree = ClusterTree { leaf_prims: sorted.order, children: &children, root };
-    to_bvh(boxes, &tree)
+    finish(boxes, &tree, cost)
 }
 
 /// Children of the `n - 1` internal nodes of the binary radix tree over `codes` (non-decreasing),

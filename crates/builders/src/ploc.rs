@@ -13,9 +13,9 @@
 //! which does not depend on evaluation order; new inner-node ids come from the same prefix scan as
 //! the compaction (n + merges before this iteration + merges before this cluster in this
 //! iteration), never from an atomic counter. So the output is bit-identical at any thread count.
-use crate::bottomup::{to_bvh, ClusterTree};
+use crate::bottomup::{finish, ClusterTree};
 use crate::sorted::SortedCodes;
-use bvhlab_bvh::{Aabb, Bvh};
+use bvhlab_bvh::{Aabb, Bvh, CostParams};
 use bvhlab_params::{Kind, Method, ParamSpec, Params, Read};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -54,13 +54,23 @@ const CHUNK: usize = 2048;
 
 /// One primitive per leaf; the caller applies the SAH compaction.
 pub fn build(boxes: &[Aabb], sorted: &SortedCodes, cfg: &PlocConfig) -> Bvh {
+    build_in(boxes, sorted, cfg, None)
+}
+
+/// [`build`] followed by the SAH compaction (`bvhlab_bvh::collapse`), the same bytes, without the
+/// uncompacted layout in memory.
+pub fn build_compacted(boxes: &[Aabb], sorted: &SortedCodes, cfg: &PlocConfig, cost: CostParams) -> Bvh {
+    build_in(boxes, sorted, cfg, Some(cost))
+}
+
+fn build_in(boxes: &[Aabb], sorted: &SortedCodes, cfg: &PlocConfig, cost: Option<CostParams>) -> Bvh {
     let n = sorted.len("ploc");
     if n == 0 {
         return Bvh::default();
     }
     let (children, root) = cluster(boxes, sorted.order, cfg.radius.max(1) as usize);
     let tree = ClusterTree { leaf_prims: sorted.order, children: &children, root };
-    to_bvh(boxes, &tree)
+    finish(boxes, &tree, cost)
 }
 
 // `a < b ? a : b` and `a > b ? a : b`: one `minps` / `maxps` each (Rust's `f32::min` adds NaN

@@ -384,3 +384,43 @@ fn with_the_real_encoder() {
         }
     }
 }
+
+#[test]
+fn compacted_builds_equal_the_compaction_of_the_full_tree() {
+    // `build_compacted` reads the cluster tree instead of the single-triangle layout; the bytes must
+    // be `collapse(build(..))`'s for every bottom-up builder, shape and cost (leaves of 1..many).
+    use bvhlab_builders::aac::{self, AacConfig};
+    use bvhlab_bvh::collapse::collapse;
+    use bvhlab_bvh::CostParams;
+    let mut inputs: Vec<(String, Vec<Aabb>)> = Vec::new();
+    for n in 0..=3 {
+        inputs.push((format!("random {n}"), random_boxes(n, 0.1, 70 + n as u64)));
+    }
+    inputs.push(("random 5000".into(), random_boxes(5000, 0.02, 9)));
+    inputs.push(("equal centroids".into(), equal_centroid_boxes(300)));
+    inputs.push(("flat".into(), flat_boxes(2000, 3)));
+    inputs.push(("points".into(), point_boxes(700)));
+    let costs = [CostParams::default(), CostParams { c_t: 1.0, c_i: 1.0 }, CostParams { c_t: 3.0, c_i: 0.25 }];
+    let mut collapsed_some = false;
+    for (what, boxes) in &inputs {
+        let centers = centers_of(boxes);
+        for bits in [10, 2] {
+            let codes = morton(&centers, bits);
+            let s = codes.sorted();
+            for cost in costs {
+                let pairs: [(&str, Bvh, Bvh); 4] = [
+                    ("lbvh", lbvh::build(boxes, &s), lbvh::build_compacted(boxes, &s, cost)),
+                    ("ploc 1", ploc::build(boxes, &s, &PlocConfig { radius: 1 }), ploc::build_compacted(boxes, &s, &PlocConfig { radius: 1 }, cost)),
+                    ("ploc 10", ploc::build(boxes, &s, &PlocConfig { radius: 10 }), ploc::build_compacted(boxes, &s, &PlocConfig { radius: 10 }, cost)),
+                    ("aac hq", aac::build(boxes, &s, &AacConfig::HQ), aac::build_compacted(boxes, &s, &AacConfig::HQ, cost)),
+                ];
+                for (name, full, direct) in pairs {
+                    let expected = collapse(&full, cost);
+                    collapsed_some |= expected.nodes.len() < full.nodes.len();
+                    assert!(direct.canonical_bytes() == expected.canonical_bytes(), "{name} on {what}, {bits} bits, {cost:?}");
+                }
+            }
+        }
+    }
+    assert!(collapsed_some, "some compaction must merge leaves");
+}

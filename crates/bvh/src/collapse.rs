@@ -1,5 +1,5 @@
 //! SAH compaction (subtree collapse), Bittner et al. 2013 section 3.6, Frantal 2019 section 3.4.4.
-use crate::{Bvh, CostParams, Node};
+use crate::{Aabb, Bvh, CostParams, Node};
 
 /// Post-order: replace a subtree by one leaf holding all its primitives when the leaf's cost
 /// c_I * SA(N) * t(N) is lower than the subtree's cost (c_T * SA(N) + cost of both children; the
@@ -14,95 +14,155 @@ use crate::{Bvh, CostParams, Node};
 /// [`DISTINCT_CAP`] references, else their reference count, an upper bound: such subtrees collapse
 /// slightly less eagerly, never wrongly).
 pub fn collapse(bvh: &Bvh, cost: CostParams) -> Bvh {
-    let n = bvh.nodes.len();
-    if n == 0 {
+    if bvh.nodes.is_empty() {
         return bvh.clone();
     }
-    let repeats = has_repeats(&bvh.prim_indices);
+    collapse_from(&mut Stored(bvh), has_repeats(&bvh.prim_indices), cost)
+}
+
+/// A binary tree as [`collapse_from`] reads it: node ids, boxes, children and leaf primitives. The
+/// Morton builders give theirs as a cluster tree (`bvhlab_builders::bottomup`) without laying out a
+/// [`Bvh`] of single-triangle leaves first: that layout (64 bytes per triangle) beside the compacted
+/// copy was their memory peak (issue 19.4).
+pub trait CollapseSource {
+    /// Ids are `0..id_count()`.
+    fn id_count(&self) -> usize;
+    fn root(&self) -> u32;
+    /// `Some([left, right])` for an inner node, `None` for a leaf.
+    fn children(&self, id: u32) -> Option<[u32; 2]>;
+    /// A leaf's primitives, left to right.
+    fn prims(&self, id: u32) -> &[u32];
+    /// The primitive references of all leaves.
+    fn reference_count(&self) -> usize;
+    /// A node's box; an inner node's only after its [`CollapseSource::refit`].
+    fn bounds(&self, id: u32) -> Aabb;
+    /// An inner node's box, given its children's: called once per inner node, after its
+    /// children's, before any [`CollapseSource::bounds`] of it. A source with stored boxes returns
+    /// its own; a cluster tree keeps the union.
+    fn refit(&mut self, id: u32, left: &Aabb, right: &Aabb) -> Aabb;
+}
+
+/// A [`Bvh`] as a collapse source: its stored boxes.
+struct Stored<'a>(&'a Bvh);
+
+impl CollapseSource for Stored<'_> {
+    fn id_count(&self) -> usize {
+        self.0.nodes.len()
+    }
+    fn root(&self) -> u32 {
+        0
+    }
+    fn children(&self, id: u32) -> Option<[u32; 2]> {
+        let nd = &self.0.nodes[id as usize];
+        (!nd.is_leaf()).then_some([nd.first, nd.first + 1])
+    }
+    fn prims(&self, id: u32) -> &[u32] {
+        let nd = &self.0.nodes[id as usize];
+        &self.0.prim_indices[nd.first as usize..(nd.first + nd.count) as usize]
+    }
+    fn reference_count(&self) -> usize {
+        self.0.prim_indices.len()
+    }
+    fn bounds(&self, id: u32) -> Aabb {
+        self.0.nodes[id as usize].bounds
+    }
+    fn refit(&mut self, id: u32, _: &Aabb, _: &Aabb) -> Aabb {
+        self.0.nodes[id as usize].bounds
+    }
+}
+
+/// [`collapse`] of any non-empty tree: the output depends only on the tree (shape, left/right
+/// order, boxes, primitives), not on its ids, so a source gives the same bytes as its [`Bvh`]
+/// layout. `repeats`: some triangle is referenced twice ([`has_repeats`]).
+pub fn collapse_from<S: CollapseSource + ?Sized>(src: &mut S, repeats: bool, cost: CostParams) -> Bvh {
+    let n = src.id_count();
     let (c_t, c_i) = (cost.c_t as f64, cost.c_i as f64);
     // Post-order over an explicit stack (children's indices need not exceed their parent's); a
-    // finished subtree's cost, primitive count and (repeated references) distinct triangles wait
-    // on a value stack for its parent, so the only per-node array is the decision: the work memory
-    // is a byte per node plus two stacks as deep as the tree, not the 17 bytes per node of
-    // per-node costs, counts and order (the peak of the Morton builders, which collapse a tree of
-    // single-triangle leaves: issue 19.4).
+    // finished subtree's box, cost, primitive count, output node count and (repeated references)
+    // distinct triangles wait on a value stack for its parent, so the only per-node array is the
+    // decision: the work memory is a byte per node plus two stacks as deep as the tree, not the 17
+    // bytes per node of per-node costs, counts and order (the peak of the Morton builders, which
+    // collapse a tree of single-triangle leaves: issue 19.4).
+    struct Val {
+        bounds: Aabb,
+        cost: f64,
+        count: u32,
+        /// Nodes of the subtree's output (1 when it becomes a leaf).
+        out: usize,
+        distinct: Option<Vec<u32>>,
+    }
     let mut make_leaf = vec![false; n];
-    let mut todo = vec![(0u32, false)];
-    let mut vals: Vec<(f64, u32, Option<Vec<u32>>)> = Vec::new();
+    let mut todo = vec![(src.root(), false)];
+    let mut vals: Vec<Val> = Vec::new();
     while let Some((i, expanded)) = todo.pop() {
-        let nd = &bvh.nodes[i as usize];
-        let sa = nd.bounds.area_f64();
-        let i = i as usize;
-        if nd.is_leaf() {
-            make_leaf[i] = true;
-            let distinct = repeats.then(|| {
-                let mut v = bvh.prim_indices[nd.first as usize..(nd.first + nd.count) as usize].to_vec();
-                v.sort_unstable();
-                v
-            });
-            vals.push((c_i * sa * nd.count as f64, nd.count, distinct));
-        } else if !expanded {
-            // The left child's value ends up below the right one's.
-            todo.push((i as u32, true));
-            todo.push((nd.first + 1, false));
-            todo.push((nd.first, false));
-        } else {
-            let (Some((cost_r, count_r, dist_r)), Some((cost_l, count_l, dist_l))) = (vals.pop(), vals.pop()) else {
-                unreachable!("an expanded node's two children were finished before it")
-            };
-            let mut count = count_l + count_r;
-            let mut distinct = None;
-            if let (Some(a), Some(b)) = (dist_l, dist_r) {
-                let m = merge_distinct(&a, &b);
-                count = m.len() as u32;
-                if m.len() <= DISTINCT_CAP {
-                    distinct = Some(m);
-                }
+        match src.children(i) {
+            None => {
+                make_leaf[i as usize] = true;
+                let bounds = src.bounds(i);
+                let prims = src.prims(i);
+                let distinct = repeats.then(|| {
+                    let mut v = prims.to_vec();
+                    v.sort_unstable();
+                    v
+                });
+                let count = prims.len() as u32;
+                vals.push(Val { bounds, cost: c_i * bounds.area_f64() * count as f64, count, out: 1, distinct });
             }
-            let as_inner = c_t * sa + cost_l + cost_r;
-            let as_leaf = c_i * sa * count as f64;
-            let sub_cost = if as_leaf < as_inner {
-                make_leaf[i] = true;
-                as_leaf
-            } else {
-                as_inner
-            };
-            vals.push((sub_cost, count, distinct));
+            Some([l, r]) if !expanded => {
+                // The left child's value ends up below the right one's.
+                todo.push((i, true));
+                todo.push((r, false));
+                todo.push((l, false));
+            }
+            Some(_) => {
+                let (Some(vr), Some(vl)) = (vals.pop(), vals.pop()) else {
+                    unreachable!("an expanded node's two children were finished before it")
+                };
+                let bounds = src.refit(i, &vl.bounds, &vr.bounds);
+                let sa = bounds.area_f64();
+                let mut count = vl.count + vr.count;
+                let mut distinct = None;
+                if let (Some(a), Some(b)) = (vl.distinct, vr.distinct) {
+                    let m = merge_distinct(&a, &b);
+                    count = m.len() as u32;
+                    if m.len() <= DISTINCT_CAP {
+                        distinct = Some(m);
+                    }
+                }
+                let as_inner = c_t * sa + vl.cost + vr.cost;
+                let as_leaf = c_i * sa * count as f64;
+                let (cost, out) = if as_leaf < as_inner {
+                    make_leaf[i as usize] = true;
+                    (as_leaf, 1)
+                } else {
+                    (as_inner, 1 + vl.out + vr.out)
+                };
+                vals.push(Val { bounds, cost, count, out, distinct });
+            }
         }
     }
-
-    // The output's size, so its arrays are allocated once and exactly: the root and both children
-    // of every inner node kept (an inner node none of whose ancestors became a leaf).
-    let mut out_nodes = 1usize;
-    let mut walk = vec![0u32];
-    while let Some(i) = walk.pop() {
-        let nd = &bvh.nodes[i as usize];
-        if !make_leaf[i as usize] {
-            out_nodes += 2;
-            walk.push(nd.first);
-            walk.push(nd.first + 1);
-        }
-    }
-    let mut out = Bvh { nodes: Vec::with_capacity(out_nodes), prim_indices: Vec::with_capacity(bvh.prim_indices.len()) };
-    out.nodes.push(bvh.nodes[0]);
-    // (old node, new slot)
-    let mut work = vec![(0u32, 0u32)];
+    // The output's size, so its arrays are allocated once and exactly.
+    let out_nodes = vals.pop().map_or(1, |v| v.out);
+    let placeholder = Node { bounds: Aabb::EMPTY, first: 0, count: 0 };
+    let mut out = Bvh { nodes: Vec::with_capacity(out_nodes), prim_indices: Vec::with_capacity(src.reference_count()) };
+    out.nodes.push(placeholder);
+    // (source id, output slot); every slot pushed is assigned when its entry is popped.
+    let mut work = vec![(src.root(), 0u32)];
     let mut gather = Vec::new();
-    while let Some((old, slot)) = work.pop() {
-        let nd = bvh.nodes[old as usize];
-        if make_leaf[old as usize] {
+    while let Some((id, slot)) = work.pop() {
+        let bounds = src.bounds(id);
+        if make_leaf[id as usize] {
             let first = out.prim_indices.len() as u32;
             // Gather the subtree's primitives left to right.
             gather.clear();
-            gather.push(old);
+            gather.push(id);
             while let Some(g) = gather.pop() {
-                let gn = &bvh.nodes[g as usize];
-                if gn.is_leaf() {
-                    let (a, b) = (gn.first as usize, (gn.first + gn.count) as usize);
-                    out.prim_indices.extend_from_slice(&bvh.prim_indices[a..b]);
-                } else {
-                    gather.push(gn.first + 1);
-                    gather.push(gn.first);
+                match src.children(g) {
+                    None => out.prim_indices.extend_from_slice(src.prims(g)),
+                    Some([l, r]) => {
+                        gather.push(r);
+                        gather.push(l);
+                    }
                 }
             }
             if repeats {
@@ -119,15 +179,18 @@ pub fn collapse(bvh: &Bvh, cost: CostParams) -> Bvh {
                 out.prim_indices.truncate(k);
             }
             let count = out.prim_indices.len() as u32 - first;
-            out.nodes[slot as usize] = Node::leaf(nd.bounds, first, count);
+            out.nodes[slot as usize] = Node::leaf(bounds, first, count);
         } else {
+            let Some([l, r]) = src.children(id) else {
+                unreachable!("a leaf is always kept as a leaf")
+            };
             let left = out.nodes.len() as u32;
-            out.nodes.push(bvh.nodes[nd.first as usize]);
-            out.nodes.push(bvh.nodes[nd.first as usize + 1]);
-            out.nodes[slot as usize] = Node::inner(nd.bounds, left);
+            out.nodes.push(placeholder);
+            out.nodes.push(placeholder);
+            out.nodes[slot as usize] = Node::inner(bounds, left);
             // Right pushed first so the left subtree is emitted first (depth-first order).
-            work.push((nd.first + 1, left + 1));
-            work.push((nd.first, left));
+            work.push((r, left + 1));
+            work.push((l, left));
         }
     }
     debug_assert_eq!(out.nodes.len(), out_nodes);

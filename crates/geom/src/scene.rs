@@ -96,9 +96,14 @@ impl Scene {
 
     /// Per-primitive boxes and centres: the only input builders see (bvh v2 style).
     pub fn boxes_and_centers(&self) -> (Vec<Aabb>, Vec<Vec3>) {
-        let boxes: Vec<Aabb> = self.triangles.iter().map(|t| t.bounds()).collect();
+        let boxes = self.boxes();
         let centers = boxes.iter().map(|b| b.center()).collect();
         (boxes, centers)
+    }
+
+    /// The triangles' boxes (for consumers that need no centres).
+    pub fn boxes(&self) -> Vec<Aabb> {
+        self.triangles.iter().map(|t| t.bounds()).collect()
     }
 }
 

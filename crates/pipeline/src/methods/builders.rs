@@ -29,7 +29,7 @@ pub struct Builder {
     /// stages after it, go by this.
     pub refs: Refs,
     /// `Some`: the builder consumes sorted codes from the encode stage; an encoder's `bits=auto`
-    /// resolves to this builder's code length.
+    /// resolves to this builder's code length. Such a builder gets no centres (an empty slice).
     pub codes: Option<AutoFor>,
     /// The builder returns single-primitive leaves and is followed by the SAH compaction
     /// (`bvhlab_bvh::collapse`, thesis 3.8 / Bittner 3.6) inside the timed build: the thesis counts
@@ -58,9 +58,11 @@ pub fn standard() -> Vec<BuilderInfo> {
         top_down(&incremental::METHOD, |b, _, _, r| incremental::build(b, &incremental::IncConfig::from_params(&r.params, r.cost))),
         // Stich et al. 2009: clips triangles, so it takes them instead of boxes; references repeat.
         over_triangles(&sbvh::METHOD, |t, r| sbvh::build(t, &sbvh::SbvhConfig::from_params(&r.params, r.config()))),
-        bottom_up(&lbvh::METHOD, AutoFor::Lbvh, |b, _, s, _| lbvh::build(b, sorted(s))),
-        bottom_up(&aac::METHOD, AutoFor::Aac, |b, _, s, r| aac::build(b, sorted(s), &r.aac_config())),
-        bottom_up(&ploc::METHOD, AutoFor::Ploc, |b, _, s, r| ploc::build(b, sorted(s), &ploc::PlocConfig::from_params(&r.params))),
+        // Each compacts its cluster tree directly (`build_compacted`: the bytes of the SAH compaction
+        // of its single-triangle layout, without that layout in memory).
+        bottom_up(&lbvh::METHOD, AutoFor::Lbvh, |b, _, s, r| lbvh::build_compacted(b, sorted(s), r.cost)),
+        bottom_up(&aac::METHOD, AutoFor::Aac, |b, _, s, r| aac::build_compacted(b, sorted(s), &r.aac_config(), r.cost)),
+        bottom_up(&ploc::METHOD, AutoFor::Ploc, |b, _, s, r| ploc::build_compacted(b, sorted(s), &ploc::PlocConfig::from_params(&r.params), r.cost)),
         // Production libraries (issue 18): Embree 3 where installed, obvhs always.
         peer(Peer::EmbreeMorton, |b, _, _, r| peer_run(Peer::EmbreeMorton, b, r)),
         peer(Peer::EmbreeBinned, |b, _, _, r| peer_run(Peer::EmbreeBinned, b, r)),
@@ -175,8 +177,9 @@ fn needs_triangles(_: &[Aabb], _: &[Vec3], _: Option<&SortedCodes>, r: &Resolved
     panic!("builder `{}` clips triangles: call `BuilderInfo::construct` with the scene's triangles", r.builder)
 }
 
+/// A bottom-up builder over codes whose call includes its SAH compaction.
 fn bottom_up(m: &super::Method, auto: AutoFor, run: BuildFn) -> BuilderInfo {
-    MethodInfo::new(m, Builder::over_codes(run, auto))
+    MethodInfo::new(m, Builder { collapse: false, ..Builder::over_codes(run, auto) })
 }
 
 /// The pipeline guarantees codes for code-using builders (`Builder::codes`).
