@@ -182,7 +182,7 @@ pub(crate) fn partition<R: Ref>(
 /// [`partition`] when the children's boxes are already known (the binned SAH has them from its
 /// bins, exactly: unions of the same boxes): gathers only the centroid bounds, half the min/max
 /// work of the loop. `lb` / `rb` are the left and right boxes.
-#[inline]
+#[inline(always)]
 pub(crate) fn partition_known_bounds<R: Ref>(
     refs: &mut [R],
     r: &Range,
@@ -217,7 +217,7 @@ const _: () = assert!(BLOCK.is_power_of_two() && 2 * BLOCK <= 256);
 /// the plain scan, so the permutation is Hoare's exactly (and `partition_parallel`'s, which
 /// reproduces it): the same trees. On a random split half the plain scan's branches mispredicted
 /// (the profile's hottest spots in the binned build).
-#[inline]
+#[inline(always)]
 fn hoare_blocks<R>(s: &mut [R], is_left: &impl Fn(&R) -> bool) -> usize {
     let (mut l, mut r) = (0usize, s.len());
     // Pending offsets (from `l` / back from `r - 1`) of misplaced elements of the current blocks;
