@@ -476,12 +476,17 @@ pub(crate) unsafe fn woop4(
     unsafe {
         let set = _mm_set1_ps;
         let (ox, oy, oz) = (set(r.org[0]), set(r.org[1]), set(r.org[2]));
-        let (sx, sy, sz) = (set(r.s[0]), set(r.s[1]), set(r.s[2]));
-        let (az, bz, cz) = (_mm_sub_ps(row(0, 2), oz), _mm_sub_ps(row(1, 2), oz), _mm_sub_ps(row(2, 2), oz));
+        let (sx, sy) = (set(r.s[0]), set(r.s[1]));
+        // Every vertex coordinate as origin minus vertex, the negation of the scalar test's
+        // vertex minus origin (so the row is the subtrahend, which AVX takes from memory), and
+        // so are the sheared coordinates: IEEE rounding is symmetric, so each is the exact
+        // negation of the scalar test's value, the edge functions' products (two negated
+        // factors) and det are the same bits, and t is the same with -sz.
+        let (az, bz, cz) = (_mm_sub_ps(oz, row(0, 2)), _mm_sub_ps(oz, row(1, 2)), _mm_sub_ps(oz, row(2, 2)));
         let sh = |i: usize, z: __m128| {
             (
-                _mm_sub_ps(_mm_sub_ps(row(i, 0), ox), _mm_mul_ps(sx, z)),
-                _mm_sub_ps(_mm_sub_ps(row(i, 1), oy), _mm_mul_ps(sy, z)),
+                _mm_sub_ps(_mm_sub_ps(ox, row(i, 0)), _mm_mul_ps(sx, z)),
+                _mm_sub_ps(_mm_sub_ps(oy, row(i, 1)), _mm_mul_ps(sy, z)),
             )
         };
         let ((ax, ay), (bx, by), (cx, cy)) = (sh(0, az), sh(1, bz), sh(2, cz));
@@ -491,20 +496,25 @@ pub(crate) unsafe fn woop4(
         let det = _mm_add_ps(_mm_add_ps(u, vv), w);
         let zero = _mm_setzero_ps();
         let on_edge = _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(vv, zero)), _mm_cmpeq_ps(w, zero));
-        let adet = _mm_andnot_ps(set(-0.0), det);
-        let trusted = _mm_and_ps(_mm_cmpge_ps(adet, set(DET_MIN)), _mm_cmple_ps(adet, set(DET_MAX)));
-        let fallback = (_mm_movemask_ps(on_edge) | (!_mm_movemask_ps(trusted) & 0xf)) & valid;
-        // Mixed signs (some edge function < 0 and some > 0) miss: the least below 0 and the
-        // largest above 0. A lane with a NaN is in `fallback` (its det is NaN), so min / max
-        // need not see NaN as the comparisons would.
-        let lo = _mm_min_ps(_mm_min_ps(u, vv), w);
-        let hi = _mm_max_ps(_mm_max_ps(u, vv), w);
-        let mixed = _mm_and_ps(_mm_cmplt_ps(lo, zero), _mm_cmpgt_ps(hi, zero));
-        let mut cand = !_mm_movemask_ps(mixed) & valid & !fallback;
+        // |det| outside [DET_MIN, DET_MAX] (or NaN) as one unsigned comparison of its bits:
+        // |det| - DET_MIN > DET_MAX - DET_MIN, unsigned, is that signed after flipping the sign bits.
+        let abits = _mm_and_si128(_mm_castps_si128(det), _mm_set1_epi32(i32::MAX));
+        let flip = |b: u32| b.wrapping_sub(DET_MIN.to_bits()) ^ (1 << 31);
+        let untrusted = _mm_cmpgt_epi32(
+            _mm_add_epi32(abits, _mm_set1_epi32(flip(0) as i32)),
+            _mm_set1_epi32(flip(DET_MAX.to_bits()) as i32),
+        );
+        let fall = _mm_or_ps(on_edge, _mm_castsi128_ps(untrusted));
+        let fallback = _mm_movemask_ps(fall) & valid;
+        // Mixed signs miss. Outside `fallback` no edge function is 0 or NaN (a NaN makes det
+        // NaN), so mixed is a sign bit that differs from u's.
+        let mixed = _mm_or_ps(_mm_xor_ps(u, vv), _mm_xor_ps(u, w));
+        let mut cand = !_mm_movemask_ps(_mm_or_ps(mixed, fall)) & valid;
         if cand != 0 {
+            let nsz = set(-r.s[2]);
             let t = _mm_add_ps(
-                _mm_add_ps(_mm_mul_ps(u, _mm_mul_ps(sz, az)), _mm_mul_ps(vv, _mm_mul_ps(sz, bz))),
-                _mm_mul_ps(w, _mm_mul_ps(sz, cz)),
+                _mm_add_ps(_mm_mul_ps(u, _mm_mul_ps(nsz, az)), _mm_mul_ps(vv, _mm_mul_ps(nsz, bz))),
+                _mm_mul_ps(w, _mm_mul_ps(nsz, cz)),
             );
             let mut ts = [0f32; 4];
             _mm_storeu_ps(ts.as_mut_ptr(), _mm_div_ps(t, det));
