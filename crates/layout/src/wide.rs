@@ -1115,7 +1115,13 @@ impl<N> View<'_, N> {
         // Prepared up front: almost every ray that enters the root reaches a leaf (breakfast_room:
         // 97 %), and prepared at the first leaf the ray's data were reloaded and rebroadcast at
         // every leaf.
-        let tr = T::prepare(ray, &sr.inv);
+        let tr = if B::AVX2 {
+            // SAFETY: `B::AVX2` holds only for the AVX2 box tests, which run only after
+            // `Simd::resolve` found AVX2.
+            unsafe { T::prepare_avx2(ray, &sr.inv) }
+        } else {
+            T::prepare(ray, &sr.inv)
+        };
         stack.clear();
         let mut cur = 0u32;
         let mut budget = self.nodes + self.leaves;
