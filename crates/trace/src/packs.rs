@@ -139,7 +139,8 @@ unsafe fn watertight_pack(r: &WoopRay, q: &Tri4, best: &mut Hit) -> (u32, bool) 
         // The END bits are the prim indices' sign bits.
         let ends = _mm_movemask_ps(_mm_load_ps(q.prim.as_ptr() as *const f32));
         let lanes = if ends == 0 { 4 } else { ends.trailing_zeros() + 1 };
-        let valid = (1i32 << lanes) - 1;
+        // The lanes up to the first marked one (all four when none is), without a branch.
+        let valid = (ends ^ ends.wrapping_sub(1)) & 0xf;
         let done = (lanes, ends != 0);
         // Rows picked by the ray's axis order: one load each (the index is an address offset).
         let k = r.k;
