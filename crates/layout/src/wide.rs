@@ -670,6 +670,8 @@ pub(crate) trait NodeSource<const W: usize> {
     fn addr(&self, code: u32) -> Option<*const u8>;
     /// Bytes of one node (what a prefetch of it covers).
     const NODE_BYTES: usize;
+    /// Every node starts on a 32-byte boundary (as every triangle pack does).
+    const ALIGN32: bool = false;
     /// Where child `code`'s node or first triangle pack starts, for a prefetch (None: nothing to
     /// fetch).
     #[inline(always)]
@@ -724,6 +726,8 @@ impl<const W: usize> NodeSource<W> for Plain<'_> {
         self.data.get(code as usize * 7 * W).map(|w| w as *const u32 as *const u8)
     }
     const NODE_BYTES: usize = 28 * W;
+    /// `Row32` storage and a multiple of 32 bytes per node.
+    const ALIGN32: bool = true;
     /// Without a branch on the kind of child (it was 8 % of the traversal's mispredicted branches,
     /// callgrind's branch simulation on breakfast_room) nor bounds checks: a prefetch of an
     /// address past the arrays (a malformed code) is only a hint and never faults.
@@ -1036,7 +1040,8 @@ impl<N> View<'_, N> {
             let bytes = if N::NODE_BYTES > std::mem::size_of::<Tri4>() { N::NODE_BYTES } else { std::mem::size_of::<Tri4>() };
             if let Some(p) = self.src.prefetch_addr(code, self.packs) {
                 // Every cache line the object touches: one per 64 bytes from its first byte, and
-                // the line of its last byte (the object need not start a line). `bytes` is a
+                // the line of its last byte (the object need not start a line) where that is
+                // another. `bytes` is a
                 // constant of the instantiation, so this unrolls into a few instructions (a loop
                 // over the lines cost 20 instructions per ray, measured with callgrind).
                 let mut o = 0;
@@ -1045,8 +1050,12 @@ impl<N> View<'_, N> {
                     unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(o) as *const i8) };
                     o += 64;
                 }
-                // SAFETY: as above.
-                unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(bytes - 1) as *const i8) };
+                // Starting on a 32-byte boundary, an object of 64k + 32 bytes ends in the line of
+                // its last 64-byte step.
+                if !(N::ALIGN32 && bytes % 64 == 32) {
+                    // SAFETY: as above.
+                    unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(bytes - 1) as *const i8) };
+                }
             }
         }
     }
