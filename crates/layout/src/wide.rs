@@ -36,7 +36,9 @@
 //! hit needs one comparison, and three or more are ordered by counting (`counted_order`) instead of
 //! an insertion sort. Callgrind on bvh8, breakfast_room (2x10^6 rays): 1,242 M instructions and
 //! 14.7 M mispredicted branches (branch simulation) before these and the packs, 991 M and 6.3 M
-//! after (tinybvh's BVH8_CPU: 3.3 mispredictions per ray, bvhlab now 3.2).
+//! after (tinybvh's BVH8_CPU: 3.3 mispredictions per ray, bvhlab now 3.2); 818 M and 5.9 M with
+//! the leaf test's and the ray setup's AVX2 builds, BMI/POPCNT and the register-held pop loop
+//! (409 instructions per ray; tinybvh 268).
 //! Tried and dropped: one instantiation of the walk per ray octant (constant plane rows, as tinybvh's
 //! BVH8_CPU): the same instructions, and the jump to the octant's walk mispredicted 0.8 times per ray.
 //!
@@ -617,7 +619,7 @@ impl WideBvh {
 /// Which box test the timed path uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Simd {
-    /// AVX2 when the CPU has it (bvh8: the 8-wide box test; bvh4: the SSE box test and the leaf
+    /// AVX2 (with BMI1, BMI2 and POPCNT) when the CPU has it (bvh8: the 8-wide box test; bvh4: the SSE box test and the leaf
     /// test compiled for AVX2), else SSE for bvh4 (x86-64), else scalar.
     Best,
     Avx2,
@@ -629,7 +631,12 @@ impl Simd {
     pub(crate) fn resolve(self, width: u32) -> Simd {
         #[cfg(target_arch = "x86_64")]
         {
-            let avx2 = std::is_x86_feature_detected!("avx2");
+            // With the BMI1, BMI2 and POPCNT that every AVX2 CPU has (x86-64-v3): the AVX2 walks
+            // are compiled with them (shorter bit twiddling, a popcount for the child order).
+            let avx2 = std::is_x86_feature_detected!("avx2")
+                && std::is_x86_feature_detected!("bmi1")
+                && std::is_x86_feature_detected!("bmi2")
+                && std::is_x86_feature_detected!("popcnt");
             match (self, width) {
                 (Simd::Best | Simd::Avx2, 8 | 4) if avx2 => Simd::Avx2,
                 (Simd::Best | Simd::Sse | Simd::Avx2, 4) => Simd::Sse,
@@ -665,6 +672,8 @@ pub(crate) trait NodeSource<const W: usize> {
     fn addr(&self, code: u32) -> Option<*const u8>;
     /// Bytes of one node (what a prefetch of it covers).
     const NODE_BYTES: usize;
+    /// Every node starts on a 32-byte boundary (as every triangle pack does).
+    const ALIGN32: bool = false;
     /// Where child `code`'s node or first triangle pack starts, for a prefetch (None: nothing to
     /// fetch).
     #[inline(always)]
@@ -719,6 +728,8 @@ impl<const W: usize> NodeSource<W> for Plain<'_> {
         self.data.get(code as usize * 7 * W).map(|w| w as *const u32 as *const u8)
     }
     const NODE_BYTES: usize = 28 * W;
+    /// `Row32` storage and a multiple of 32 bytes per node.
+    const ALIGN32: bool = true;
     /// Without a branch on the kind of child (it was 8 % of the traversal's mispredicted branches,
     /// callgrind's branch simulation on breakfast_room) nor bounds checks: a prefetch of an
     /// address past the arrays (a malformed code) is only a hint and never faults.
@@ -821,7 +832,7 @@ unsafe fn sse4_order(dist: &[f32; 4], mask: u32, out: &mut [u8; 4]) -> usize {
     use std::arch::x86_64::*;
     unsafe {
         let d4 = _mm_loadu_ps(dist.as_ptr());
-        counted_order(dist, mask, out, |d| {
+        counted_order::<4, false>(dist, mask, out, |d| {
             let b = _mm_set1_ps(d);
             (_mm_movemask_ps(_mm_cmpgt_ps(d4, b)) as u32, _mm_movemask_ps(_mm_cmpeq_ps(d4, b)) as u32)
         })
@@ -830,19 +841,25 @@ unsafe fn sse4_order(dist: &[f32; 4], mask: u32, out: &mut [u8; 4]) -> usize {
 
 /// The slots of `mask` by descending entry, ties by ascending slot, each placed at the number of
 /// children hit before it: `cmp(d)` gives the lanes whose entry is greater than `d` and equal to it.
+/// `POPCNT`: the caller is compiled with the popcnt instruction (else a table counts).
 #[inline(always)]
-fn counted_order<const W: usize>(dist: &[f32; W], mask: u32, out: &mut [u8; W], cmp: impl Fn(f32) -> (u32, u32)) -> usize {
-    let (mut n, mut m) = (0, mask);
+fn counted_order<const W: usize, const POPCNT: bool>(
+    dist: &[f32; W],
+    mask: u32,
+    out: &mut [u8; W],
+    cmp: impl Fn(f32) -> (u32, u32),
+) -> usize {
+    let count = |b: u32| if POPCNT { b.count_ones() } else { POPCOUNT8[(b & 0xff) as usize] as u32 };
+    let mut m = mask;
     while m != 0 {
         let i = m.trailing_zeros() as usize;
         m &= m - 1;
         let (gt, eq) = cmp(dist[i]);
-        let rank = POPCOUNT8[(gt & mask & 0xff) as usize] + POPCOUNT8[(eq & mask & ((1 << i) - 1) & 0xff) as usize];
+        let rank = count((gt | (eq & ((1 << i) - 1))) & mask);
         // A rank is below the count of children hit (no NaN entry among them), so below W.
         out[rank as usize % W] = i as u8;
-        n += 1;
     }
-    n
+    count(mask) as usize
 }
 
 /// The 4-wide SSE box test with the plane rows given.
@@ -897,7 +914,7 @@ impl WideBox<8> for Avx8 {
         use std::arch::x86_64::*;
         unsafe {
             let d8 = _mm256_loadu_ps(dist.as_ptr());
-            counted_order(dist, mask, out, |d| {
+            counted_order::<8, true>(dist, mask, out, |d| {
                 let b = _mm256_set1_ps(d);
                 let gt = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(d8, b)) as u32;
                 (gt, _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(d8, b)) as u32)
@@ -910,10 +927,12 @@ impl WideBox<8> for Avx8 {
         // The rows of the ray's planes (loop-invariant: computed once per ray in the walk).
         let Planes { near, far } = r.planes();
         unsafe {
+            // (origin - plane) * -inverse: the same bits as (plane - origin) * inverse (both
+            // factors negated exactly), with the row the subtrahend, which AVX reads from memory.
             let t = |k: usize, a: usize| {
                 _mm256_mul_ps(
-                    _mm256_sub_ps(_mm256_loadu_ps(rows.add(k * 8)), _mm256_set1_ps(r.origin[a])),
-                    _mm256_set1_ps(r.inv[a]),
+                    _mm256_sub_ps(_mm256_set1_ps(r.origin[a]), _mm256_loadu_ps(rows.add(k * 8))),
+                    _mm256_set1_ps(-r.inv[a]),
                 )
             };
             let near = _mm256_max_ps(
@@ -947,7 +966,7 @@ pub(crate) fn trace_view<const W: usize, N: NodeSource<W> + Sync>(v: &View<N>, r
 pub(crate) fn hits_view8<T: TriTest, N: NodeSource<8> + Sync>(v: &View<N>, rays: &[Ray], simd: Simd) -> Vec<Hit> {
     par_hits(rays, |r, h, stack| match simd {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `Simd::resolve` picks Avx2 only when the CPU has AVX2.
+        // SAFETY: `Simd::resolve` picks Avx2 only when the CPU has AVX2, BMI1, BMI2 and POPCNT.
         Simd::Avx2 => unsafe { chunk_avx8::<T, N>(v, r, h, stack) },
         _ => chunk::<8, T, N, Scalar>(v, r, h, stack),
     })
@@ -958,7 +977,7 @@ pub(crate) fn hits_view8<T: TriTest, N: NodeSource<8> + Sync>(v: &View<N>, rays:
 pub(crate) fn hits_view4<T: TriTest, N: NodeSource<4> + Sync>(v: &View<N>, rays: &[Ray], simd: Simd) -> Vec<Hit> {
     par_hits(rays, |r, h, stack| match simd {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `Simd::resolve` picks Avx2 only when the CPU has AVX2.
+        // SAFETY: `Simd::resolve` picks Avx2 only when the CPU has AVX2, BMI1, BMI2 and POPCNT.
         Simd::Avx2 => unsafe { chunk_avx4::<T, N>(v, r, h, stack) },
         #[cfg(target_arch = "x86_64")]
         Simd::Sse => chunk::<4, T, N, Sse4>(v, r, h, stack),
@@ -986,7 +1005,7 @@ fn chunk<const W: usize, T: TriTest, N: NodeSource<W>, B: WideBox<W>>(v: &View<N
 /// The 8-wide chunk compiled with AVX2 so the box test's intrinsics (and a compressed node's
 /// decoding) inline and vectorize.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,bmi1,bmi2,popcnt")]
 unsafe fn chunk_avx8<T: TriTest, N: NodeSource<8>>(v: &View<N>, rays: &[Ray], hits: &mut [Hit], stack: &mut Stack) {
     if v.nodes == 0 || v.root.is_empty() {
         return hits.fill(Hit::NONE);
@@ -999,7 +1018,7 @@ unsafe fn chunk_avx8<T: TriTest, N: NodeSource<8>>(v: &View<N>, rays: &[Ray], hi
 /// The 4-wide chunk compiled for AVX2: the same SSE box test (VEX-encoded) and the leaf test's
 /// AVX2 build ([`Sse4Vex`]).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,bmi1,bmi2,popcnt")]
 unsafe fn chunk_avx4<T: TriTest, N: NodeSource<4>>(v: &View<N>, rays: &[Ray], hits: &mut [Hit], stack: &mut Stack) {
     if v.nodes == 0 || v.root.is_empty() {
         return hits.fill(Hit::NONE);
@@ -1023,7 +1042,8 @@ impl<N> View<'_, N> {
             let bytes = if N::NODE_BYTES > std::mem::size_of::<Tri4>() { N::NODE_BYTES } else { std::mem::size_of::<Tri4>() };
             if let Some(p) = self.src.prefetch_addr(code, self.packs) {
                 // Every cache line the object touches: one per 64 bytes from its first byte, and
-                // the line of its last byte (the object need not start a line). `bytes` is a
+                // the line of its last byte (the object need not start a line) where that is
+                // another. `bytes` is a
                 // constant of the instantiation, so this unrolls into a few instructions (a loop
                 // over the lines cost 20 instructions per ray, measured with callgrind).
                 let mut o = 0;
@@ -1032,8 +1052,12 @@ impl<N> View<'_, N> {
                     unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(o) as *const i8) };
                     o += 64;
                 }
-                // SAFETY: as above.
-                unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(bytes - 1) as *const i8) };
+                // Starting on a 32-byte boundary, an object of 64k + 32 bytes ends in the line of
+                // its last 64-byte step.
+                if !(N::ALIGN32 && bytes % 64 == 32) {
+                    // SAFETY: as above.
+                    unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(bytes - 1) as *const i8) };
+                }
             }
         }
     }
@@ -1112,8 +1136,16 @@ impl<N> View<'_, N> {
     {
         let mut best = Hit::within(ray.tmax);
         let (mut steps, mut tests) = (0u32, 0u32);
-        // Prepared at the first leaf: many rays never reach one.
-        let mut tr: Option<T::Ray> = None;
+        // Prepared up front: almost every ray that enters the root reaches a leaf (breakfast_room:
+        // 97 %), and prepared at the first leaf the ray's data were reloaded and rebroadcast at
+        // every leaf.
+        let tr = if B::AVX2 {
+            // SAFETY: `B::AVX2` holds only for the AVX2 box tests, which run only after
+            // `Simd::resolve` found AVX2.
+            unsafe { T::prepare_avx2(ray, &sr.inv) }
+        } else {
+            T::prepare(ray, &sr.inv)
+        };
         stack.clear();
         let mut cur = 0u32;
         let mut budget = self.nodes + self.leaves;
@@ -1168,14 +1200,13 @@ impl<N> View<'_, N> {
                 }
             } else if let Some(first) = self.src.first(cur) {
                 // The leaf's triangles: from its first pack to the lane marked last.
-                let tr = &*tr.get_or_insert_with(|| T::prepare(ray, &sr.inv));
                 let leaf = self.packs.get(first..).unwrap_or_default();
                 let n = if B::AVX2 {
                     // SAFETY: `B::AVX2` holds only for the AVX2 box test, which runs only after
                     // `Simd::resolve` found AVX2.
-                    unsafe { T::test_packs_avx2(tr, leaf, &mut best) }
+                    unsafe { T::test_packs_avx2(&tr, leaf, &mut best) }
                 } else {
-                    T::test_packs(tr, leaf, &mut best)
+                    T::test_packs(&tr, leaf, &mut best)
                 };
                 if STATS {
                     tests += n;

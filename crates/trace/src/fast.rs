@@ -93,6 +93,14 @@ pub trait TriTest: Sync {
     type Ray;
     /// `inv`: the inverse direction the box test computed already (saves divisions per ray).
     fn prepare(ray: &Ray, inv: &[f32; 3]) -> Self::Ray;
+    /// [`Self::prepare`] compiled for AVX2 where a test has such a build (the same values).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[inline(always)]
+    unsafe fn prepare_avx2(ray: &Ray, inv: &[f32; 3]) -> Self::Ray {
+        Self::prepare(ray, inv)
+    }
     fn test(r: &Self::Ray, tri: &WTri) -> Option<f32>;
     /// Tests a leaf's triangles, `tris[0]` up to the first one marked [`WTri::last`] (or the end
     /// of `tris`), accepting hits into `best`; returns how many were tested. One at a time here;
@@ -195,6 +203,50 @@ impl WoopRay {
     }
 }
 
+#[cfg(target_arch = "x86_64")]
+impl WoopRay {
+    /// [`Self::with_inverse`] for a caller compiled for AVX: the axes picked in registers by one
+    /// `vpermilps` per vector instead of by indexing arrays through memory (callgrind on
+    /// breakfast_room: about 45 instructions per ray, now about 25). The same values.
+    ///
+    /// # Safety
+    /// The CPU must have AVX.
+    #[inline(always)]
+    pub unsafe fn with_inverse_avx(origin: Vec3, dir: Vec3, inv: &[f32; 3]) -> WoopRay {
+        use std::arch::x86_64::*;
+        // [kx, ky, kz] by kz * 2 + (dir[kz] < 0), as `with_inverse`'s tables.
+        const K: [[usize; 3]; 6] = [[1, 2, 0], [2, 1, 0], [2, 0, 1], [0, 2, 1], [0, 1, 2], [1, 0, 2]];
+        const CTL: [[i32; 4]; 6] = [[1, 2, 0, 3], [2, 1, 0, 3], [2, 0, 1, 3], [0, 2, 1, 3], [0, 1, 2, 3], [1, 0, 2, 3]];
+        let a = dir.abs();
+        let x_max = (a.x >= a.y) & (a.x >= a.z);
+        let y_max = !x_max & (a.y >= a.z);
+        let kz = (!x_max as usize) * (1 + !y_max as usize);
+        unsafe {
+            let d4 = _mm_setr_ps(dir.x, dir.y, dir.z, 0.0);
+            let neg = (_mm_movemask_ps(_mm_cmplt_ps(d4, _mm_setzero_ps())) as usize >> kz) & 1;
+            let c = kz * 2 + neg;
+            let ctl = _mm_loadu_si128(CTL[c].as_ptr() as *const __m128i);
+            let pd = _mm_permutevar_ps(d4, ctl);
+            let po = _mm_permutevar_ps(_mm_setr_ps(origin.x, origin.y, origin.z, 0.0), ctl);
+            let pi = _mm_permutevar_ps(_mm_setr_ps(inv[0], inv[1], inv[2], 0.0), ctl);
+            let sz = _mm_permute_ps::<0b10_10_10_10>(pi);
+            let s4 = if _mm_cvtss_f32(sz).is_finite() {
+                _mm_blend_ps::<0b0100>(_mm_mul_ps(pd, sz), sz)
+            } else {
+                _mm_div_ps(_mm_blend_ps::<0b0100>(pd, _mm_set1_ps(1.0)), _mm_permute_ps::<0b10_10_10_10>(pd))
+            };
+            let (mut o, mut s) = ([0f32; 4], [0f32; 4]);
+            _mm_storeu_ps(o.as_mut_ptr(), po);
+            _mm_storeu_ps(s.as_mut_ptr(), s4);
+            WoopRay {
+                org: [o[0], o[1], o[2]],
+                k: K[c],
+                s: [s[0], s[1], s[2]],
+            }
+        }
+    }
+}
+
 /// |det| range in which the f32 evaluation is trusted: outside it (coordinates beyond about 1e15
 /// or below 1e-15, whose products overflow or lose digits to subnormals) the test is redone in f64,
 /// like Woop 2013's fallback for an edge function exactly 0 (section 3.3). Keeps the fast path
@@ -265,6 +317,14 @@ impl TriTest for Watertight {
     type Ray = WoopRay;
     #[inline(always)]
     fn prepare(ray: &Ray, inv: &[f32; 3]) -> WoopRay {
+        WoopRay::with_inverse(ray.origin, ray.dir, inv)
+    }
+    #[inline(always)]
+    unsafe fn prepare_avx2(ray: &Ray, inv: &[f32; 3]) -> WoopRay {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller guarantees AVX2 (so AVX).
+        return unsafe { WoopRay::with_inverse_avx(ray.origin, ray.dir, inv) };
+        #[cfg(not(target_arch = "x86_64"))]
         WoopRay::with_inverse(ray.origin, ray.dir, inv)
     }
     #[inline(always)]
@@ -476,12 +536,17 @@ pub(crate) unsafe fn woop4(
     unsafe {
         let set = _mm_set1_ps;
         let (ox, oy, oz) = (set(r.org[0]), set(r.org[1]), set(r.org[2]));
-        let (sx, sy, sz) = (set(r.s[0]), set(r.s[1]), set(r.s[2]));
-        let (az, bz, cz) = (_mm_sub_ps(row(0, 2), oz), _mm_sub_ps(row(1, 2), oz), _mm_sub_ps(row(2, 2), oz));
+        let (sx, sy) = (set(r.s[0]), set(r.s[1]));
+        // Every vertex coordinate as origin minus vertex, the negation of the scalar test's
+        // vertex minus origin (so the row is the subtrahend, which AVX takes from memory), and
+        // so are the sheared coordinates: IEEE rounding is symmetric, so each is the exact
+        // negation of the scalar test's value, the edge functions' products (two negated
+        // factors) and det are the same bits, and t is the same with -sz.
+        let (az, bz, cz) = (_mm_sub_ps(oz, row(0, 2)), _mm_sub_ps(oz, row(1, 2)), _mm_sub_ps(oz, row(2, 2)));
         let sh = |i: usize, z: __m128| {
             (
-                _mm_sub_ps(_mm_sub_ps(row(i, 0), ox), _mm_mul_ps(sx, z)),
-                _mm_sub_ps(_mm_sub_ps(row(i, 1), oy), _mm_mul_ps(sy, z)),
+                _mm_sub_ps(_mm_sub_ps(ox, row(i, 0)), _mm_mul_ps(sx, z)),
+                _mm_sub_ps(_mm_sub_ps(oy, row(i, 1)), _mm_mul_ps(sy, z)),
             )
         };
         let ((ax, ay), (bx, by), (cx, cy)) = (sh(0, az), sh(1, bz), sh(2, cz));
@@ -491,20 +556,25 @@ pub(crate) unsafe fn woop4(
         let det = _mm_add_ps(_mm_add_ps(u, vv), w);
         let zero = _mm_setzero_ps();
         let on_edge = _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(vv, zero)), _mm_cmpeq_ps(w, zero));
-        let adet = _mm_andnot_ps(set(-0.0), det);
-        let trusted = _mm_and_ps(_mm_cmpge_ps(adet, set(DET_MIN)), _mm_cmple_ps(adet, set(DET_MAX)));
-        let fallback = (_mm_movemask_ps(on_edge) | (!_mm_movemask_ps(trusted) & 0xf)) & valid;
-        // Mixed signs (some edge function < 0 and some > 0) miss: the least below 0 and the
-        // largest above 0. A lane with a NaN is in `fallback` (its det is NaN), so min / max
-        // need not see NaN as the comparisons would.
-        let lo = _mm_min_ps(_mm_min_ps(u, vv), w);
-        let hi = _mm_max_ps(_mm_max_ps(u, vv), w);
-        let mixed = _mm_and_ps(_mm_cmplt_ps(lo, zero), _mm_cmpgt_ps(hi, zero));
-        let mut cand = !_mm_movemask_ps(mixed) & valid & !fallback;
+        // |det| outside [DET_MIN, DET_MAX] (or NaN) as one unsigned comparison of its bits:
+        // |det| - DET_MIN > DET_MAX - DET_MIN, unsigned, is that signed after flipping the sign bits.
+        let abits = _mm_and_si128(_mm_castps_si128(det), _mm_set1_epi32(i32::MAX));
+        let flip = |b: u32| b.wrapping_sub(DET_MIN.to_bits()) ^ (1 << 31);
+        let untrusted = _mm_cmpgt_epi32(
+            _mm_add_epi32(abits, _mm_set1_epi32(flip(0) as i32)),
+            _mm_set1_epi32(flip(DET_MAX.to_bits()) as i32),
+        );
+        let fall = _mm_or_ps(on_edge, _mm_castsi128_ps(untrusted));
+        let fallback = _mm_movemask_ps(fall) & valid;
+        // Mixed signs miss. Outside `fallback` no edge function is 0 or NaN (a NaN makes det
+        // NaN), so mixed is a sign bit that differs from u's.
+        let mixed = _mm_or_ps(_mm_xor_ps(u, vv), _mm_xor_ps(u, w));
+        let mut cand = !_mm_movemask_ps(_mm_or_ps(mixed, fall)) & valid;
         if cand != 0 {
+            let nsz = set(-r.s[2]);
             let t = _mm_add_ps(
-                _mm_add_ps(_mm_mul_ps(u, _mm_mul_ps(sz, az)), _mm_mul_ps(vv, _mm_mul_ps(sz, bz))),
-                _mm_mul_ps(w, _mm_mul_ps(sz, cz)),
+                _mm_add_ps(_mm_mul_ps(u, _mm_mul_ps(nsz, az)), _mm_mul_ps(vv, _mm_mul_ps(nsz, bz))),
+                _mm_mul_ps(w, _mm_mul_ps(nsz, cz)),
             );
             let mut ts = [0f32; 4];
             _mm_storeu_ps(ts.as_mut_ptr(), _mm_div_ps(t, det));
@@ -967,4 +1037,32 @@ pub fn check_agreement(
         ));
     }
     Ok(differ)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The AVX build of the watertight ray setup gives `with_inverse`'s values bit for bit: every
+    /// axis order, ties between components, zeros of both signs, subnormal, infinite and NaN.
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn woop_setup_avx_equals_the_scalar_one() {
+        if !std::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let vals = [0.0f32, -0.0, 1.0, -1.0, 0.5, -2.0, 3.0, 1e-40, -1e-40, f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 1e30];
+        let bits = |r: &WoopRay| (r.org.map(f32::to_bits), r.k, r.s.map(f32::to_bits));
+        for &x in &vals {
+            for &y in &vals {
+                for &z in &vals {
+                    let (o, d) = (Vec3::new(0.25, -7.0, 1e3), Vec3::new(x, y, z));
+                    let inv = [1.0 / x, 1.0 / y, 1.0 / z];
+                    // SAFETY: AVX2 was detected.
+                    let avx = unsafe { WoopRay::with_inverse_avx(o, d, &inv) };
+                    assert_eq!(bits(&avx), bits(&WoopRay::with_inverse(o, d, &inv)), "{d:?}");
+                }
+            }
+        }
+    }
 }

@@ -257,11 +257,27 @@ impl<T: Pending> Stack<T> {
     /// returns it; None when no pending node can hold a closer hit.
     #[inline(always)]
     pub fn pop_within(&mut self, limit: f32) -> Option<T> {
-        while let Some(e) = self.pop() {
+        if !self.spill.is_empty() {
+            while let Some(e) = self.pop() {
+                if e.entry() <= limit {
+                    return Some(e);
+                }
+            }
+            return None;
+        }
+        // Only the array: its length in a register through the loop and stored once (most
+        // entries popped are culled: breakfast_room's bvh8 culls 7 of 10).
+        let mut n = self.len;
+        while n > 0 {
+            n -= 1;
+            // SAFETY: `len` never exceeds STACK_SIZE (`push` spills past it), and n < len.
+            let e = unsafe { *self.items.get_unchecked(n) };
             if e.entry() <= limit {
+                self.len = n;
                 return Some(e);
             }
         }
+        self.len = 0;
         None
     }
 }
