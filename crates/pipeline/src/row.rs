@@ -59,6 +59,14 @@ pub struct ResultRow {
     /// Seconds of every timed build run, in run order (the stage artifact keeps them too).
     #[serde(default)]
     pub build_seconds_runs: Option<Vec<f64>>,
+    /// Peak heap growth of the build stage's first run (the builder's working arrays and its BVH;
+    /// not the scene, its boxes and centres, nor the encode stage's codes), counted by the
+    /// pipeline's allocator; None for peer libraries (their allocations are not Rust's).
+    #[serde(default)]
+    pub build_heap_bytes: Option<u64>,
+    /// `build_heap_bytes` per input triangle (issue 19.4 asks the builders' peak per triangle).
+    #[serde(default)]
+    pub build_heap_bytes_per_triangle: Option<f64>,
     /// Encoder of the encode stage (`morton`, `emc64-sort`, `emc64-var`); absent for builders that
     /// take no codes (the top-down ones).
     pub encoder: Option<String>,
@@ -263,6 +271,9 @@ impl ResultRow {
             build_seconds: 0.0,
             build_seconds_spread: z(self.build_seconds_spread),
             build_seconds_runs: zr(&self.build_seconds_runs),
+            // A measurement like the times (what else the process allocates meanwhile counts).
+            build_heap_bytes: self.build_heap_bytes.map(|_| 0),
+            build_heap_bytes_per_triangle: z(self.build_heap_bytes_per_triangle),
             encode_seconds: z(self.encode_seconds),
             encode_seconds_spread: z(self.encode_seconds_spread),
             encode_seconds_runs: zr(&self.encode_seconds_runs),

@@ -67,6 +67,26 @@ fn bvh2_through_the_pipeline() {
     assert!(row.method.ends_with(" @bvh2"), "{}", row.method);
 }
 
+/// Issue 19.4: the build stage reports its peak heap; the BVH it returns (nodes and primitive
+/// indices) is alive at the end of the run, so the peak holds at least those bytes.
+#[test]
+fn build_heap_is_reported() {
+    let _serial = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let mut r = Runner::new(Store::open(dir.path()).unwrap());
+    for b in ["binned-sah", "sweep-sah", "lbvh"] {
+        let row = run(&mut r, &chain(b, None, false));
+        let heap = row.build_heap_bytes.unwrap();
+        // lbvh is compacted inside its build: its output has fewer nodes than a leaf-per-triangle tree.
+        assert!(heap >= row.bytes, "{b}: heap {heap} < the BVH's {} bytes", row.bytes);
+        assert!(heap < 1000 * row.triangles, "{b}: {heap} bytes for {} triangles", row.triangles);
+        assert_eq!(row.build_heap_bytes_per_triangle, Some(heap as f64 / row.triangles as f64));
+        // A second run reads the cached build: the same figure.
+        let again = run(&mut r, &chain(b, None, false));
+        assert_eq!(again.build_heap_bytes, Some(heap), "{b}");
+    }
+}
+
 /// Issue 16: bvh2 timed against itself must never read as a slowdown (5.1 was seen on a loaded
 /// machine when both sides were timed separately). Layout bvh2 is its own anchor: exactly 1, with
 /// no spread, at any machine load; and so is `auto` when it picks bvh2.

@@ -22,7 +22,8 @@ use std::time::Instant;
 ///    prescaled by a power of two; the SAH leaf test splits on equal costs (as the compaction
 ///    keeps such subtrees).
 /// A change of one builder bumps that builder's own version (`BuilderInfo::version`) instead.
-pub const BUILD_VERSION: u32 = 3;
+/// 4: the summary keeps the build's peak heap (`BvhSummary::peak_heap_bytes`; issue 19.4).
+pub const BUILD_VERSION: u32 = 4;
 
 /// Summary of a BVH-producing stage (`build`, `compact`): metrics, validity, hash and timings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -35,6 +36,10 @@ pub struct BvhSummary {
     /// Seconds of each of the `repeat` runs.
     pub seconds: Vec<f64>,
     pub median_seconds: f64,
+    /// Peak heap growth of the first run in bytes (the method's working memory and its output;
+    /// process-wide counting allocator, `memtrack`). None for peer libraries, which allocate
+    /// outside Rust's allocator.
+    pub peak_heap_bytes: Option<u64>,
 }
 
 /// Full artifact of a BVH-producing stage (`<key>.bin`).
@@ -78,10 +83,16 @@ pub(crate) fn repeat_bvh(
     let cost = plan.resolved.cost;
     let mut seconds = Vec::with_capacity(plan.spec.repeat as usize);
     let mut first: Option<(Bvh, blake3::Hash)> = None;
+    let mut peak = None;
     for i in 0..plan.spec.repeat {
+        // Peak heap of the first run only (later runs reuse the memory the first one freed).
+        let mark = (i == 0).then(crate::memtrack::reset_peak);
         let t = Instant::now();
         let (bvh, own) = run()?;
         seconds.push(own.unwrap_or_else(|| secs(t)));
+        if let Some(m) = mark {
+            peak = Some(crate::memtrack::peak_since(m));
+        }
         let h = blake3::hash(&bvh.canonical_bytes());
         match &first {
             None => first = Some((bvh, h)),
@@ -108,6 +119,7 @@ pub(crate) fn repeat_bvh(
         bvh_hash: hash.to_hex().to_string(),
         median_seconds: median(&seconds),
         seconds,
+        peak_heap_bytes: peak,
     };
     Ok(BvhArtifact { bvh, summary })
 }
@@ -157,7 +169,7 @@ impl Stage for Build {
         }
         let (ops, cost) = (rt.ops, plan.resolved.cost);
         // Bottom-up builders include their SAH compaction (thesis: part of AAC / PLOC).
-        let art = repeat_bvh(&ops, plan, node, &boxes, info.refs, false, || {
+        let mut art = repeat_bvh(&ops, plan, node, &boxes, info.refs, false, || {
             if let Some(peer) = info.peer {
                 // The library's own call is timed (not the import); its failure is this peer's.
                 return peer
@@ -178,6 +190,9 @@ impl Stage for Build {
                 None,
             ))
         })?;
+        if info.peer.is_some() {
+            art.summary.peak_heap_bytes = None;
+        }
         Ok((art, Files::new()))
     }
 }

@@ -382,6 +382,9 @@ pub(crate) fn row(rt: &mut Runner, plan: &Plan, experiment: &str) -> Result<Resu
     let runs = |v: &[f64]| Some(v.to_vec());
     row.build_seconds_spread = spread(&build.seconds);
     row.build_seconds_runs = runs(&build.seconds);
+    row.build_heap_bytes = build.peak_heap_bytes;
+    row.build_heap_bytes_per_triangle =
+        build.peak_heap_bytes.map(|b| b as f64 / row.triangles.max(1) as f64);
     if let Some(e) = &encode {
         row.encode_seconds_spread = spread(&e.seconds);
         row.encode_seconds_runs = runs(&e.seconds);

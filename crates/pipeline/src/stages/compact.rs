@@ -8,7 +8,8 @@ use crate::run::{Files, Node, Runner, Stage, Timing};
 use std::collections::BTreeMap;
 
 /// 2: areas of boxes spanning more than the f32 range (issue 15).
-pub const COMPACT_VERSION: u32 = 2;
+/// 3: the summary keeps the peak heap (`BvhSummary::peak_heap_bytes`).
+pub const COMPACT_VERSION: u32 = 3;
 
 pub const COMPACT_METHODS: [&str; 2] = ["none", "collapse"];
 

@@ -8,8 +8,9 @@ use crate::run::{Files, Node, Runner, Stage, Timing};
 use serde::{Deserialize, Serialize};
 
 /// 2: f64 areas in the insertion search and the measures (issue 15).
+/// 3: the summary keeps the peak heap (`BvhSummary::peak_heap_bytes`).
 /// A change of one optimizer bumps that optimizer's own version (`OptimizerInfo::version`).
-pub const OPTIMIZE_VERSION: u32 = 2;
+pub const OPTIMIZE_VERSION: u32 = 3;
 
 /// What the optimize stage keeps beside its BVH (`optimize/<key>.opt`): the pass-by-pass trace the
 /// report draws convergence curves from, and why the optimizer stopped.

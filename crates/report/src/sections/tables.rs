@@ -30,7 +30,7 @@ pub fn sortable(id: &str, head: &[&str], rows: impl Iterator<Item = (bool, Vec<(
 pub fn results(rows: &[ResultRow]) -> Markup {
     let head = [
         "scene", "method", "rays", "triangles", "dropped", "SAH cost", "focus SAH", "built SAH", "optimized SAH",
-        "encode s", "build s", "optimize s", "passes", "compact s", "total build s", "build spread", "dup codes", "inner SA",
+        "encode s", "build s", "optimize s", "passes", "compact s", "total build s", "build spread", "build heap B/tri", "dup codes", "inner SA",
         "leaf SA", "refs/leaf", "leaves", "depth", "bytes/tri", "steps/ray", "isects/ray", "Mrays/s", "trace spread", "valid",
     ];
     let body = html! {
@@ -39,7 +39,10 @@ pub fn results(rows: &[ResultRow]) -> Markup {
         } @else {
             p {
                 "Selected columns; every column is in results.csv / results.parquet. Times are medians in \
-                 seconds. Rows failing structural validation are red. Click a header to sort."
+                 seconds. Build heap: the build stage's peak heap growth per triangle (working arrays and \
+                 the BVH; not the scene, its boxes and centres, nor the Morton codes; empty for peer \
+                 libraries, which allocate outside Rust). Rows failing structural validation are red. \
+                 Click a header to sort."
             }
             (sortable("results-table", &head, rows.iter().map(|r| {
                 let t = |s: &str| (false, s.to_string());
@@ -61,6 +64,7 @@ pub fn results(rows: &[ResultRow]) -> Markup {
                     n(fmt_num(r.compact_seconds)),
                     n(fmt_num(crate::analysis::total_build_seconds(r))),
                     n(r.total_build_seconds_spread.map(|s| format!("{:.0} %", s * 100.0)).unwrap_or_default()),
+                    n(r.build_heap_bytes_per_triangle.map(|b| format!("{b:.0}")).unwrap_or_default()),
                     n(opt(r.duplicate_code_fraction)),
                     n(fmt_num(r.inner_sa_ratio)),
                     n(fmt_num(r.leaf_sa_ratio)),
