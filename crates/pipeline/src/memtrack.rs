@@ -1,11 +1,12 @@
-//! Peak heap measurement for the layout stage: a counting global allocator around
+//! Peak heap measurement for the BVH stages (build, optimize, compact) and the layout stage: a
+//! counting global allocator around
 //! `std::alloc::System` (live bytes and their high-water mark, Relaxed atomics: one add per
 //! allocation, a load and a rare `fetch_max` for the peak).
 //!
 //! The counters are **process-wide**: every thread's allocations count, so a measurement taken while
 //! other work allocates concurrently (a parallel test, another stage) includes that work. The
-//! pipeline runs stages one at a time, so `peak_build_bytes` is the layout build's own heap growth
-//! (its rayon workers included) plus the noise of whatever else the process does meanwhile.
+//! pipeline runs stages one at a time, so `peak_build_bytes` (layout) and `build_heap_bytes` (build)
+//! are the stage's own heap growth (its rayon workers included) plus the noise of whatever else the process does meanwhile.
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
 

@@ -64,7 +64,7 @@ pub struct ResultRow {
     /// pipeline's allocator; None for peer libraries (their allocations are not Rust's).
     #[serde(default)]
     pub build_heap_bytes: Option<u64>,
-    /// `build_heap_bytes` per input triangle (issue 19.4 asks the builders' peak per triangle).
+    /// `build_heap_bytes` per triangle of `triangles` (the kept ones; issue 19.4 asks the builders' peak per triangle).
     #[serde(default)]
     pub build_heap_bytes_per_triangle: Option<f64>,
     /// Encoder of the encode stage (`morton`, `emc64-sort`, `emc64-var`); absent for builders that
