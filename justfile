@@ -58,8 +58,8 @@ kilian:
     cargo run --release -- sweep experiments/kilian-chunks.toml
 
 # Trace throughput, 1 thread, 10^6 random rays of the anchors' kind: bvhlab bvh2, bvh4, bvh8 (and bvh8 on
-# 2 threads) beside Embree rtcIntersect1 and tinybvh BVH8_CPU run in the same invocation, with the ratios
-# (issue 19). Scenes: stanford_dragon, conference, breakfast_room, stanford_bunny when present.
+# 2 threads) beside Embree rtcIntersect1 and tinybvh BVH8_CPU run in the same invocation, once per round after
+# bvhlab's runs, so both sides are medians of RUNS interleaved runs; ratios of medians (issue 19). Scenes: stanford_dragon, conference, breakfast_room, stanford_bunny when present.
 bench-trace RUNS="3" *SCENES="":
     #!/usr/bin/env bash
     set -euo pipefail

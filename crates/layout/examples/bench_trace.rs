@@ -10,8 +10,9 @@
 //! infinite tmax (the anchors' tfar). The points come from bvhlab's generator (seed 7), not the
 //! anchors' mt19937, so the rays are of the same kind but not the same rays: the hit fractions
 //! printed beside each other say how close the sets are. 1 thread: median of `--runs` rounds, the
-//! configurations alternated within each round; 2 threads for bvh8. Then `embree-anchor SCENE 1 1` and `tinybvh-anchor SCENE 1` (their builds run
-//! once; their traces are one pass over 10^6 rays each) in the same invocation, and the ratios.
+//! configurations alternated within each round; 2 threads for bvh8. `embree-anchor SCENE 1 1` and
+//! `tinybvh-anchor SCENE 1` (their builds run once per invocation; their traces are one pass over
+//! 10^6 rays each) run once at the end of every round, and their medians give the ratios.
 //! Before timing, the fast hits of 10^4 rays are checked against the exact traversal
 //! (`bvhlab_trace::check_agreement`).
 use bvhlab_builders::{binned_sah, TopDownConfig};
@@ -37,8 +38,9 @@ type Job<'a> = (usize, Box<dyn Fn() -> Vec<Hit> + Sync + 'a>);
 /// Median Mrays/s of each job over `runs` rounds, the jobs alternated within a round (so a slow
 /// phase of the machine falls on every job alike, not on the one that happened to run then): by
 /// wall time, and (1 thread) by the worker thread's own CPU time, which a loaded machine inflates
-/// less (the wall time is what compares with the anchors, which report wall time).
-fn mrays(rays: usize, runs: usize, jobs: &[Job]) -> Vec<(f64, Option<f64>)> {
+/// less (the wall time is what compares with the anchors, which report wall time). `after_round`
+/// runs at the end of every round (the anchors: alternated with bvhlab's jobs the same way).
+fn mrays(rays: usize, runs: usize, jobs: &[Job], mut after_round: impl FnMut()) -> Vec<(f64, Option<f64>)> {
     let pools: Vec<rayon::ThreadPool> = jobs.iter().map(|(n, _)| pool(*n)).collect();
     let mut t = vec![Vec::new(); jobs.len()];
     let mut c = vec![Vec::new(); jobs.len()];
@@ -55,6 +57,7 @@ fn mrays(rays: usize, runs: usize, jobs: &[Job]) -> Vec<(f64, Option<f64>)> {
                 c[j].push(ns as f64 * 1e-9);
             }
         }
+        after_round();
     }
     jobs.iter()
         .enumerate()
@@ -194,7 +197,15 @@ fn main() {
             (2, Box::new(|| w8.hits(&s8, &rays))),
             (1, Box::new(|| cw.hits(&s8, &rays))),
         ];
-        let m = mrays(rays.len(), runs, &jobs);
+        // The anchors once per round (`embree-anchor SCENE 1 1`, `tinybvh-anchor SCENE 1`: each
+        // traces its 10^6 rays once per invocation), so their figures are medians of as many runs
+        // as bvhlab's, taken in the same rounds: one invocation's figure moved by 10-15 % between
+        // invocations (tinybvh on breakfast_room 11.3-12.9 Mrays/s, 2026-11-28).
+        let (mut e_runs, mut t_runs) = (Vec::new(), Vec::new());
+        let m = mrays(rays.len(), runs, &jobs, || {
+            e_runs.extend(anchor(&format!("{tools}/embree-anchor"), &[spec, "1", "1"]));
+            t_runs.extend(anchor(&format!("{tools}/tinybvh-anchor"), &[spec, "1"]));
+        });
         let [(m2, c2), (m4, c4), (m8, c8), (m8x2, _), (mcw, ccw)] = m[..] else { unreachable!() };
         // Embree's rtcIntersect1 on these very rays, one thread, its scene (MEDIUM) committed
         // untimed: the anchor's own figure also times its ray generation (mt19937, sin, cos, sqrt).
@@ -203,12 +214,23 @@ fn main() {
             let secs: Vec<f64> = (0..runs).filter_map(|_| peer.trace(&bvh, tris, &rays).ok().map(|t| t.seconds)).collect();
             (!secs.is_empty()).then(|| rays.len() as f64 / median(&secs) / 1e6)
         });
-        let e = anchor(&format!("{tools}/embree-anchor"), &[spec, "1", "1"]);
-        let t = anchor(&format!("{tools}/tinybvh-anchor"), &[spec, "1"]);
-        let em = e.as_deref().and_then(|j| field(j, "scene_commit_ms", "mrays_per_s_1thread"));
-        let eh = e.as_deref().and_then(|j| field(j, "scene_commit_ms", "hit_fraction"));
-        let tm = t.as_deref().and_then(|j| field(j, "trace_bvh8_cpu", "mrays_per_s_1thread"));
-        let th = t.as_deref().and_then(|j| field(j, "trace_bvh8_cpu", "hit_fraction"));
+        // Median of a field over the anchor's runs (None when no run gave it).
+        let med = |runs: &[String], after: &str, key: &str| {
+            let v: Vec<f64> = runs.iter().filter_map(|j| field(j, after, key)).collect();
+            (!v.is_empty()).then(|| median(&v))
+        };
+        let em = med(&e_runs, "scene_commit_ms", "mrays_per_s_1thread");
+        let eh = med(&e_runs, "scene_commit_ms", "hit_fraction");
+        let tm = med(&t_runs, "trace_bvh8_cpu", "mrays_per_s_1thread");
+        let th = med(&t_runs, "trace_bvh8_cpu", "hit_fraction");
+        let each = |runs: &[String], after: &str| {
+            runs.iter().filter_map(|j| field(j, after, "mrays_per_s_1thread")).map(|v| format!("{v:.2}")).collect::<Vec<_>>()
+        };
+        eprintln!(
+            "{name}: anchor runs, Mrays/s: embree {:?}, tinybvh {:?}",
+            each(&e_runs, "scene_commit_ms"),
+            each(&t_runs, "trace_bvh8_cpu")
+        );
         let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.2}", 100.0 * v));
         let num = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
         let ratio = |a: f64, b: Option<f64>| b.map_or("-".to_string(), |b| format!("{:.2}x", a / b));
