@@ -22,6 +22,16 @@ pub fn encode<T: Serialize>(value: &T) -> Result<Vec<u8>, String> {
     Ok(out)
 }
 
+/// blake3 of `value`'s encoding, streamed through a 16 KiB buffer instead of built in memory: the
+/// timed stages check every call's result with it inside their peak-heap window (`crate::batch`).
+/// Not the artifact's file hash (no header), only equal for equal values.
+pub fn digest<T: Serialize>(value: &T) -> Result<blake3::Hash, String> {
+    let mut w = std::io::BufWriter::with_capacity(1 << 14, blake3::Hasher::new());
+    bincode::serde::encode_into_std_write(value, &mut w, config()).map_err(|e| format!("encode: {e}"))?;
+    let h = w.into_inner().map_err(|e| format!("encode: {e}"))?;
+    Ok(h.finalize())
+}
+
 /// Header and payload separately (the store writes them one after the other, so a large artifact
 /// is not copied a second time in memory). `header ++ payload == encode(value)`.
 ///
@@ -104,6 +114,18 @@ mod tests {
         let bytes = encode(&sample()).unwrap();
         let back: T = decode(&bytes).unwrap();
         assert_eq!(back, sample());
+    }
+
+    #[test]
+    fn digest_is_the_payload_hash_and_tells_values_apart() {
+        let (_, payload) = encode_parts(&sample()).unwrap();
+        assert_eq!(digest(&sample()).unwrap(), blake3::hash(&payload));
+        let mut other = sample();
+        other.b[1] = 0.0;
+        assert_ne!(digest(&other).unwrap(), digest(&sample()).unwrap(), "-0.0 and 0.0 differ in bits");
+        // Longer than the 16 KiB buffer.
+        let big = T { a: 1, b: vec![0.25; 10_000], s: String::new() };
+        assert_eq!(digest(&big).unwrap(), blake3::hash(&encode_parts(&big).unwrap().1));
     }
 
     #[test]

@@ -514,7 +514,8 @@ mod tests {
 
 // ---- time ------------------------------------------------------------------------------------
 
-/// Estimated wall seconds to compute one node (all `repeat` runs, validation and writing), for
+/// Estimated wall seconds to compute one node (all `repeat` runs, each at least
+/// `batch::MIN_RUN_SECONDS` where timed, validation and writing), for
 /// plans and shard balancing (`crate::plan`). Deterministic: it depends only on the node's stage
 /// and parameters, the scene's triangle count and the rays, never on the machine or the cache.
 ///
@@ -615,7 +616,13 @@ pub fn node_seconds(
         "focus" => 30e-9 * t,
         _ => 100e-9 * t,
     };
-    overhead + work
+    // A timed run lasts at least `batch::MIN_RUN_SECONDS` (short calls are batched); a measure
+    // with a layout times the layout and bvh2 (a layout `bvh2` times one side).
+    let timed = matches!(stage, "encode" | "build" | "optimize" | "compact" | "measure")
+        || (stage == "layout" && p("layout") != "auto");
+    let sides = if stage == "measure" && layout.is_some_and(|l| l != "bvh2") { 2.0 } else { 1.0 };
+    let floor = if timed { repeat * sides * crate::batch::MIN_RUN_SECONDS } else { 0.0 };
+    overhead + work.max(floor)
 }
 
 /// Factor on a measure node's estimate for the generated scenes whose rays do not follow the

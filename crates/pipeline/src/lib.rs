@@ -4,6 +4,7 @@
 //! loading). `memtrack` installs the counting global allocator (peak layout build memory).
 
 pub mod atomic;
+pub mod batch;
 pub mod catalogue;
 pub mod codec;
 pub mod error;

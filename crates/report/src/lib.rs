@@ -232,8 +232,9 @@ pub fn write_report_with(
         "noise",
         "Timing noise",
         format!(
-            "Every timed quantity is the median of the experiment's repeats; its spread is (slowest - fastest) / \
-             median (results.csv: <name>_spread, <name>_runs). Rows whose construction, trace or slowdown spread \
+            "Every timed quantity is the median of the experiment's repeats, each run at least 10 ms of calls (a \
+             shorter call is warmed up and repeated within the run; times are per call); its spread is (slowest - \
+             fastest) / median (results.csv: <name>_spread, <name>_runs). Rows whose construction, trace or slowdown spread \
              exceeds {} are listed: their times are a property of the machine's load as much as of the method. \
              Verdicts on times elsewhere in this report read \"within noise\" unless the difference exceeds the \
              spreads. Re-run on a quiet machine (or with more repeats) to resolve them.",

@@ -8,13 +8,13 @@ use super::encode::Encode;
 use super::load::Load;
 use super::optimize::Optimize;
 use super::Ops;
+use crate::batch::{Batch, SameAsFirst};
 use crate::error::{Error, Result};
-use crate::run::{secs, Artifact, Files, Node, Runner, Stage, Timing};
+use crate::run::{Artifact, Files, Node, Runner, Stage, Timing};
 use bvhlab_bvh::{Aabb, Bvh, Metrics, Refs};
 use bvhlab_geom::stats::median;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
-use std::time::Instant;
 
 /// 2: bottom-up builders (lbvh, aac, ploc) and the reworked (parallel) binned SAH.
 /// 3: scale-free costs (issue 15): SAH areas and costs in f64, binned SAH bins in f64 and its
@@ -23,7 +23,8 @@ use std::time::Instant;
 ///    keeps such subtrees).
 /// A change of one builder bumps that builder's own version (`BuilderInfo::version`) instead.
 /// 4: the summary keeps the build's peak heap (`BvhSummary::peak_heap_bytes`; issue 19.4).
-pub const BUILD_VERSION: u32 = 4;
+/// 5: timed runs of calls shorter than 10 ms are batched (`crate::batch`): every time is re-measured.
+pub const BUILD_VERSION: u32 = 5;
 
 /// Summary of a BVH-producing stage (`build`, `compact`): metrics, validity, hash and timings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -84,29 +85,35 @@ pub(crate) fn repeat_bvh(
     let mut seconds = Vec::with_capacity(plan.spec.repeat as usize);
     let mut first: Option<(Bvh, blake3::Hash)> = None;
     let mut peak = None;
+    let mut batch = if time_capped { Batch::single() } else { Batch::new() };
+    // Every call's tree against the first call's (untimed; a short build is called many times),
+    // by a streamed digest: the check runs inside the peak-heap window.
+    let mut same = SameAsFirst::default();
+    let mut check = |bvh: &Bvh| -> Result<()> {
+        if time_capped {
+            return Ok(());
+        }
+        let h = crate::codec::digest(bvh).map_err(Error::internal)?;
+        same.check(h, |call| {
+            Error::internal(format!(
+                "{} `{}` is not deterministic: call {call} produced a different BVH than call 1 on {}",
+                node.stage,
+                node.params.get("builder").or(node.params.get("method")).cloned().unwrap_or_default(),
+                plan.spec.scene
+            ))
+        })
+    };
     for i in 0..plan.spec.repeat {
         // Peak heap of the first run only (later runs reuse the memory the first one freed).
         let mark = (i == 0).then(crate::memtrack::reset_peak);
-        let t = Instant::now();
-        let (bvh, own) = run()?;
-        seconds.push(own.unwrap_or_else(|| secs(t)));
+        let (bvh, s) = batch.run_checked(&mut run, &mut check)?;
+        seconds.push(s);
         if let Some(m) = mark {
             peak = Some(crate::memtrack::peak_since(m));
         }
-        let h = blake3::hash(&bvh.canonical_bytes());
-        match &first {
-            None => first = Some((bvh, h)),
-            Some(_) if time_capped => {}
-            Some((_, h0)) if *h0 != h => {
-                return Err(Error::internal(format!(
-                    "{} `{}` is not deterministic: run {} produced a different BVH than run 1 on {}",
-                    node.stage,
-                    node.params.get("builder").or(node.params.get("method")).cloned().unwrap_or_default(),
-                    i + 1,
-                    plan.spec.scene
-                )));
-            }
-            _ => {}
+        if first.is_none() {
+            let h = blake3::hash(&bvh.canonical_bytes());
+            first = Some((bvh, h));
         }
     }
     let (bvh, hash) = first.ok_or_else(|| Error::internal("repeat = 0"))?;

@@ -9,7 +9,8 @@ use std::collections::BTreeMap;
 
 /// 2: areas of boxes spanning more than the f32 range (issue 15).
 /// 3: the summary keeps the peak heap (`BvhSummary::peak_heap_bytes`).
-pub const COMPACT_VERSION: u32 = 3;
+/// 4: timed runs of calls shorter than 10 ms are batched (`crate::batch`): every time is re-measured.
+pub const COMPACT_VERSION: u32 = 4;
 
 pub const COMPACT_METHODS: [&str; 2] = ["none", "collapse"];
 

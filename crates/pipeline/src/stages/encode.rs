@@ -2,15 +2,16 @@
 //! 3.7.1; Riemersma 2024), for the builders that take codes (lbvh, aac, ploc).
 use super::chain::{method_params, Plan};
 use super::load::Load;
+use crate::batch::{Batch, SameAsFirst};
 use crate::error::{Error, Result};
-use crate::run::{secs, Artifact, Files, Node, Runner, Stage, Timing};
+use crate::run::{Artifact, Files, Node, Runner, Stage, Timing};
 use bvhlab_geom::stats::median;
 use bvhlab_morton::Encoding;
 use serde::{Deserialize, Serialize};
-use std::time::Instant;
 
 /// 3: EMC size of boxes spanning more than the f32 range (issue 15).
-pub const ENCODE_VERSION: u32 = 3;
+/// 4: timed runs of calls shorter than 10 ms are batched (`crate::batch`): every time is re-measured.
+pub const ENCODE_VERSION: u32 = 4;
 
 /// Summary of the encode stage (`encode/<key>.sum`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -59,26 +60,26 @@ impl Stage for Encode {
         let scene = rt.full::<Load>(plan)?;
         let (boxes, centers) = scene.boxes_and_centers();
         let mut seconds = Vec::new();
-        let mut first: Option<Encoding> = None;
-        for run in 0..plan.spec.repeat {
+        let mut batch = Batch::new();
+        // Every call's codes against the first call's (untimed; a short encode is called many times).
+        let mut same = SameAsFirst::default();
+        let mut check = |e: &Encoding| {
+            same.check(e.clone(), |call| {
+                Error::internal(format!(
+                    "encoder `{}` is not deterministic: call {call} produced different codes than call 1 on {}",
+                    enc.encoder, plan.spec.scene
+                ))
+            })
+        };
+        for _ in 0..plan.spec.repeat {
             // Only encode() is timed (codes + sort); boxes and centres are shared preparation.
-            let t = Instant::now();
-            let e = (rt.ops.encode)(&boxes, &centers, &enc.config, enc.cell_frame);
-            seconds.push(secs(t));
-            match &first {
-                None => first = Some(e),
-                Some(e0) if *e0 != e => {
-                    return Err(Error::internal(format!(
-                        "encoder `{}` is not deterministic: run {} produced different codes than run 1 on {}",
-                        enc.encoder,
-                        run + 1,
-                        plan.spec.scene
-                    )));
-                }
-                _ => {}
-            }
+            let (_, s) = batch.run_checked(
+                || Ok(((rt.ops.encode)(&boxes, &centers, &enc.config, enc.cell_frame), None)),
+                &mut check,
+            )?;
+            seconds.push(s);
         }
-        let encoding = first.ok_or_else(|| Error::internal("repeat = 0"))?;
+        let encoding = same.into_first().ok_or_else(|| Error::internal("repeat = 0"))?;
         if encoding.order.len() != boxes.len() || encoding.codes.len() != boxes.len() {
             return Err(Error::internal(format!(
                 "encoder `{}` returned {} codes for {} primitives",

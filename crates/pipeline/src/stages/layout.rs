@@ -5,14 +5,14 @@ use super::auto::auto_search;
 use super::build::final_bvh;
 use super::chain::{cost_params, method_version, param, Plan};
 use super::load::Load;
+use crate::batch::{Batch, SameAsFirst};
 use crate::error::{Error, Result};
-use crate::run::{secs, Artifact, Files, Node, Runner, Stage, Timing};
+use crate::run::{Artifact, Files, Node, Runner, Stage, Timing};
 use bvhlab_bvh::Bvh;
 use bvhlab_geom::stats::median;
 use bvhlab_layout::{Layout, LayoutSpec, Memory};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::time::Instant;
 
 /// 3: layout names `qbvh` -> `qbvh_chunks`, `octree1` -> `octree_1bit` (issue 17); an `auto`
 ///    artifact records the chosen candidate by name. Layout contents are unchanged.
@@ -21,7 +21,8 @@ use std::time::Instant;
 /// A change of one layout bumps that layout's own version (`.with_version(2)` on its `METHOD` in
 /// `bvhlab_layout`): its layout nodes get new keys, and so do the `auto` nodes (which may choose
 /// it), nothing else.
-pub const LAYOUT_VERSION: u32 = 4;
+/// 5: timed runs of calls shorter than 10 ms are batched (`crate::batch`): every time is re-measured.
+pub const LAYOUT_VERSION: u32 = 5;
 
 /// A layout request: a layout with its parameters, or the `auto` search (Kilian 2021 layouts; the
 /// chosen one then behaves as if it had been given).
@@ -251,33 +252,35 @@ impl Stage for LayoutStage {
         let mut seconds = Vec::new();
         let mut first: Option<(bvhlab_layout::Layout, blake3::Hash)> = None;
         let mut peak = 0;
+        let mut batch = Batch::new();
+        // Every call's layout against the first call's (untimed; a short build is called many times).
+        let mut same = SameAsFirst::default();
+        let mut check = |l: &bvhlab_layout::Layout| -> Result<()> {
+            // Streamed: the check runs inside the peak-heap window.
+            let h = crate::codec::digest(l).map_err(Error::internal)?;
+            same.check(h, |call| {
+                Error::internal(format!(
+                    "layout `{}` is not deterministic: call {call} produced a different layout than call 1 on {}",
+                    spec.name, plan.spec.scene
+                ))
+            })
+        };
         for run in 0..plan.spec.repeat {
             // Peak heap of the first build only (later builds reuse freed memory the same way).
             let mark = (run == 0).then(crate::memtrack::reset_peak);
-            let t = Instant::now();
-            let l = (rt.ops.layout)(&spec, bvh, tris, None).map_err(|e| {
-                Error::internal(format!(
-                    "layout `{}` on {}: {e}",
-                    spec.name, plan.spec.scene
-                ))
-            })?;
-            seconds.push(secs(t));
+            let build = || {
+                let l = (rt.ops.layout)(&spec, bvh, tris, None)
+                    .map_err(|e| Error::internal(format!("layout `{}` on {}: {e}", spec.name, plan.spec.scene)))?;
+                Ok((l, None))
+            };
+            let (l, s) = batch.run_checked(build, &mut check)?;
+            seconds.push(s);
             if let Some(m) = mark {
                 peak = crate::memtrack::peak_since(m);
             }
-            let bytes = crate::codec::encode(&l).map_err(Error::internal)?;
-            let h = blake3::hash(&bytes);
-            match &first {
-                None => first = Some((l, h)),
-                Some((_, h0)) if *h0 != h => {
-                    return Err(Error::internal(format!(
-                        "layout `{}` is not deterministic: run {} produced a different layout than run 1 on {}",
-                        spec.name,
-                        run + 1,
-                        plan.spec.scene
-                    )));
-                }
-                _ => {}
+            if first.is_none() {
+                let h = blake3::hash(&crate::codec::encode(&l).map_err(Error::internal)?);
+                first = Some((l, h));
             }
         }
         let (layout, hash) = first.ok_or_else(|| Error::internal("repeat = 0"))?;

@@ -4,15 +4,15 @@ use super::build::final_bvh;
 use super::chain::{param, Plan};
 use super::layout::LayoutStage;
 use super::load::Load;
+use crate::batch::Batch;
 use crate::error::{Error, Result};
-use crate::run::{secs, Artifact, Files, Node, Runner, Stage, Timing};
+use crate::run::{Artifact, Files, Node, Runner, Stage, Timing};
 use crate::store::Store;
 use bvhlab_geom::stats::median;
 use bvhlab_geom::Scene;
 use bvhlab_trace::Camera;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::time::Instant;
 
 /// 2: traversal keeps a popped node whose entry equals the best t within the slab margin (ties).
 /// 3: optional layout input (its own traversal, bvh2 anchor timed alternately, extra hits/tests).
@@ -27,7 +27,8 @@ use std::time::Instant;
 /// 8: bvh2's timed traversal reads child pairs (`bvhlab_trace::pairs`): faster, same hits.
 /// 9: bvh2's timed traversal prefetches both children of a pair before its box test (faster on
 ///    trees beyond the caches: dragon +30 %), same hits; every timed bvh2 anchor is re-measured.
-pub const MEASURE_VERSION: u32 = 9;
+/// 10: timed runs of calls shorter than 10 ms are batched (`crate::batch`): every time is re-measured.
+pub const MEASURE_VERSION: u32 = 10;
 
 /// A ray set of the measure stage (thesis 4.4).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -262,36 +263,36 @@ impl Stage for Measure {
         let timed = layout.as_ref().map(|l| l.layout.timed(tris));
         let mut seconds = Vec::new();
         let mut bvh2_seconds = Vec::new();
+        // Short traces are timed in batches of calls (`crate::batch`), each side its own.
+        let (mut layout_batch, mut bvh2_batch) = (Batch::new(), Batch::new());
         for run in 0..plan.spec.repeat {
             match (&layout, &timed) {
                 (Some(l), Some(tl)) if !matches!(l.layout, bvhlab_layout::Layout::Bvh2(_)) => {
                     // The bvh2 anchor runs beside the layout on the same rays, alternating which
                     // goes first, so slowdown compares runs under the same machine conditions.
-                    let mut time_layout = || {
-                        let t = Instant::now();
-                        std::hint::black_box(tl.hits(tris, &rays));
-                        seconds.push(secs(t));
+                    let mut time_layout = || -> Result<()> {
+                        let (_, s) = layout_batch.run(|| Ok((std::hint::black_box(tl.hits(tris, &rays)), None)))?;
+                        seconds.push(s);
+                        Ok(())
                     };
-                    let mut time_bvh2 = || {
-                        let t = Instant::now();
-                        std::hint::black_box(fast_bvh2.hits(&rays));
-                        bvh2_seconds.push(secs(t));
+                    let mut time_bvh2 = || -> Result<()> {
+                        let (_, s) = bvh2_batch.run(|| Ok((std::hint::black_box(fast_bvh2.hits(&rays)), None)))?;
+                        bvh2_seconds.push(s);
+                        Ok(())
                     };
                     if run % 2 == 0 {
-                        time_layout();
-                        time_bvh2();
+                        time_layout()?;
+                        time_bvh2()?;
                     } else {
-                        time_bvh2();
-                        time_layout();
+                        time_bvh2()?;
+                        time_layout()?;
                     }
                 }
                 _ => {
                     // No layout, or bvh2 against bvh2: the same traversal of the same tree, one
                     // timing per run stands for both sides (slowdown exactly 1 by construction;
                     // timing it twice measured only noise: 5.1 was seen on a loaded machine).
-                    let t = Instant::now();
-                    std::hint::black_box(fast_bvh2.hits(&rays));
-                    let s = secs(t);
+                    let (_, s) = bvh2_batch.run(|| Ok((std::hint::black_box(fast_bvh2.hits(&rays)), None)))?;
                     seconds.push(s);
                     if layout.is_some() {
                         bvh2_seconds.push(s);
@@ -364,9 +365,14 @@ fn peer_measure(
     let fail = |e: String| Error::input(format!("{} traversal on {}: {e}", p.method().name, plan.spec.scene));
     let mut seconds = Vec::new();
     let mut first = None;
+    let mut batch = Batch::new();
     for _ in 0..plan.spec.repeat {
-        let t = p.trace(bvh, tris, rays).map_err(fail)?;
-        seconds.push(t.seconds);
+        let (t, s) = batch.run(|| {
+            let t = p.trace(bvh, tris, rays).map_err(fail)?;
+            let s = t.seconds;
+            Ok((t, Some(s)))
+        })?;
+        seconds.push(s);
         first.get_or_insert(t);
     }
     let t = first.ok_or_else(|| Error::internal("repeat = 0"))?;
