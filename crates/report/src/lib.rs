@@ -237,7 +237,8 @@ pub fn write_report_with(
              fastest) / median (results.csv: <name>_spread, <name>_runs). Rows whose construction, trace or slowdown spread \
              exceeds {} are listed: their times are a property of the machine's load as much as of the method. \
              Verdicts on times elsewhere in this report read \"within noise\" unless the difference exceeds the \
-             spreads. Re-run on a quiet machine (or with more repeats) to resolve them.",
+             spreads. Re-run on a quiet machine, with more repeats or on one thread (`--threads 1`: on a 2-core machine \
+             two threads were most of the noise) to resolve them.",
             analysis::NOISY_SPREAD
         ),
         Vec::new(),

@@ -10,8 +10,8 @@ use serde::{Deserialize, Serialize};
 /// 2: f64 areas in the insertion search and the measures (issue 15).
 /// 3: the summary keeps the peak heap (`BvhSummary::peak_heap_bytes`).
 /// A change of one optimizer bumps that optimizer's own version (`OptimizerInfo::version`).
-/// 4: timed runs of calls shorter than 10 ms are batched (`crate::batch`): every time is re-measured. (not a
-///    time-capped optimizer's: one call per run).
+/// 4: timed runs of calls shorter than 10 ms are batched (`crate::batch`; a time-capped optimizer
+///    keeps one call per run): every time is re-measured.
 pub const OPTIMIZE_VERSION: u32 = 4;
 
 /// What the optimize stage keeps beside its BVH (`optimize/<key>.opt`): the pass-by-pass trace the
