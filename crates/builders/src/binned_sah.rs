@@ -47,7 +47,9 @@ pub const METHOD: Method = Method::new(
 )
 // 2: the same trees; the split is also compiled for AVX2 and chosen at run time (faster build):
 //    build times re-measured.
-.with_version(2);
+// 3: the same trees; a primitive's centroid on the split axis read as two scalars instead of
+//    indexing a vector by a run-time axis (a match): build times re-measured.
+.with_version(3);
 
 /// Eq. 6's epsilon: shifts every centroid slightly left so the right boundary needs no special case.
 const BIN_EPSILON: f64 = 1e-5;
@@ -229,8 +231,8 @@ impl Bins3 {
     /// constant second, so a NaN centroid lands in bin 0 both ways; the legacy [`bin_of`] gives
     /// the same bins for every value).
     #[inline(always)]
-    fn bin_of_axis(&self, c: &Vec3A, axis: usize) -> usize {
-        let f = (((c[axis] * self.s[axis] - self.cb_min[axis]) * self.k0[axis]).max(0.0))
+    fn bin_of_axis(&self, c: f32, axis: usize) -> usize {
+        let f = (((c * self.s[axis] - self.cb_min[axis]) * self.k0[axis]).max(0.0))
             .min(self.kmax);
         // SAFETY: `f` is in [0, k - 1] (max/min above removed NaN), so it fits a u32: one convert
         // instead of the saturating cast's range fix-ups.
@@ -339,7 +341,7 @@ impl Binner {
             self.count[..k].fill(0);
             self.bounds[..k].fill(BoxA::EMPTY);
             for p in prims {
-                let b = bin_of(p.c()[axis], bins, k);
+                let b = bin_of(p.c_axis(axis), bins, k);
                 self.count[b] += 1;
                 self.bounds[b].grow(p.min(), p.max());
             }
@@ -356,14 +358,14 @@ impl Binner {
         let mut pairs = prims.chunks_exact(2);
         for pq in pairs.by_ref() {
             let (p, q) = (&pq[0], &pq[1]);
-            let (i, j) = (bin_of(p.c()[axis], bins, k), bin_of(q.c()[axis], bins, k));
+            let (i, j) = (bin_of(p.c_axis(axis), bins, k), bin_of(q.c_axis(axis), bins, k));
             ca[i] += 1;
             ba[i].grow(p.min(), p.max());
             cb[j] += 1;
             bb[j].grow(q.min(), q.max());
         }
         for p in pairs.remainder() {
-            let i = bin_of(p.c()[axis], bins, k);
+            let i = bin_of(p.c_axis(axis), bins, k);
             ca[i] += 1;
             ba[i].grow(p.min(), p.max());
         }
@@ -619,7 +621,7 @@ fn split<R: Ref>(
             // same boxes), so the loop gathers only the centroid bounds.
             let (lb, rb) = binner.child_boxes(0, last);
             let (left, right) =
-                partition_known_bounds(refs, r, lb, rb, |p| bin_of(p.c()[axis], &bins, k) <= last);
+                partition_known_bounds(refs, r, lb, rb, |p| bin_of(p.c_axis(axis), &bins, k) <= last);
             debug_assert!(left.len() > 0 && right.len() > 0);
             Some((left, right))
         }
@@ -690,7 +692,7 @@ fn partition3<R: Ref>(
     let (axis, last) = (best.axis, best.last_left_bin);
     let (lb, rb) = binner.child_boxes(axis, last);
     let (left, right) =
-        partition_known_bounds(refs, r, lb, rb, |p| bins.bin_of_axis(&p.c(), axis) <= last);
+        partition_known_bounds(refs, r, lb, rb, |p| bins.bin_of_axis(p.c_axis(axis), axis) <= last);
     debug_assert!(left.len() > 0 && right.len() > 0);
     (left, right)
 }
@@ -820,7 +822,7 @@ fn build_parallel_refs<R: Ref>(
                                 a
                             })?;
                         let best = binner.sweep(s);
-                        let f = move |p: &R, last: usize| bin_of(p.c()[axis], &bins, k) <= last;
+                        let f = move |p: &R, last: usize| bin_of(p.c_axis(axis), &bins, k) <= last;
                         (best, axis, Box::new(f))
                     }
                     Plan::Bin3 { bins } => {
@@ -838,7 +840,7 @@ fn build_parallel_refs<R: Ref>(
                         let best = binner.sweep3(s, &bins);
                         let axis = best.map_or(r.cbounds.largest_axis(), |b| b.axis);
                         let f =
-                            move |p: &R, last: usize| bins.bin_of_axis(&p.c(), axis) <= last;
+                            move |p: &R, last: usize| bins.bin_of_axis(p.c_axis(axis), axis) <= last;
                         (best, axis, Box::new(f))
                     }
                 };

@@ -16,6 +16,9 @@ pub(crate) trait Ref: Copy + Send + Sync + std::fmt::Debug {
     fn min(&self) -> Vec3A;
     fn max(&self) -> Vec3A;
     fn c(&self) -> Vec3A;
+    /// `self.c()[axis]`, the same bits, read as scalars: indexing a `Vec3A` by a run-time axis
+    /// compiles to a match (a spill and a branch per primitive in the binning and partition loops).
+    fn c_axis(&self, axis: usize) -> f32;
     fn idx(&self) -> u32;
 }
 
@@ -46,6 +49,12 @@ impl Ref for BoxRef {
     #[inline(always)]
     fn c(&self) -> Vec3A {
         self.min() * 0.5 + self.max() * 0.5
+    }
+    /// Lane `axis` of [`BoxRef::c`]: the same two products and sum in scalar f32 (IEEE per lane).
+    #[inline(always)]
+    fn c_axis(&self, axis: usize) -> f32 {
+        let (lo, hi): (&[f32; 4], &[f32; 4]) = (self.lo.as_ref(), self.hi.as_ref());
+        lo[axis] * 0.5 + hi[axis] * 0.5
     }
     #[inline(always)]
     fn idx(&self) -> u32 {
@@ -78,6 +87,11 @@ impl Ref for PrimRef {
     #[inline(always)]
     fn c(&self) -> Vec3A {
         self.c.into()
+    }
+    #[inline(always)]
+    fn c_axis(&self, axis: usize) -> f32 {
+        let c: &[f32; 3] = self.c.as_ref();
+        c[axis]
     }
     #[inline(always)]
     fn idx(&self) -> u32 {
@@ -291,7 +305,7 @@ pub(crate) fn object_median<R: Ref>(refs: &mut [R], r: &Range, axis: usize) -> (
     debug_assert!(s.len() >= 2);
     let m = s.len() / 2;
     s.select_nth_unstable_by(m, |a, b| {
-        a.c()[axis].total_cmp(&b.c()[axis]).then(a.idx().cmp(&b.idx()))
+        a.c_axis(axis).total_cmp(&b.c_axis(axis)).then(a.idx().cmp(&b.idx()))
     });
     let bounds = |part: &[R]| {
         let (mut b, mut cb) = (BoxA::EMPTY, BoxA::EMPTY);

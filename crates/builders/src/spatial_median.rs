@@ -33,7 +33,10 @@ pub const METHOD: Method = Method::new(
             in_label: false,
         },
     ],
-);
+)
+// 2: the same trees; the centroid on the split axis read as scalars (see `Ref::c_axis`): times
+//    re-measured.
+.with_version(2);
 
 /// Whose bounding box the split plane halves.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -101,7 +104,7 @@ fn split<R: Ref>(refs: &mut [R], r: &Range, max_leaf: usize, frame: Frame) -> Op
     let (lo, hi) = (b.min[axis], b.max[axis]);
     // Halves first: the same float as 0.5 (lo + hi) but no overflow near f32::MAX.
     let mid = 0.5 * lo + 0.5 * hi;
-    let (left, right) = partition(refs, r, |p| p.c()[axis] < mid);
+    let (left, right) = partition(refs, r, |p| p.c_axis(axis) < mid);
     if left.len() == 0 || right.len() == 0 {
         return Some(object_median(refs, r, axis));
     }
