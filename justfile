@@ -72,7 +72,8 @@ bench-trace RUNS="3" *SCENES="":
     fi
     echo "# uptime: $(uptime)"
     # AXES=all: the binary tree of tinybvh's BVH8_CPU (8 bins on all axes) instead of the thesis' binned SAH.
-    cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --tools ../shared/tools --axes "${AXES:-largest}" $scenes
+    # BINS=N: N bins (default 16, or 8 with AXES=all); BINS=32 is the build that passes issue 19's build target.
+    cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --tools ../shared/tools --axes "${AXES:-largest}" ${BINS:+--bins "$BINS"} $scenes
 
 # issue 19.4: binned SAH (thesis and all-axes configurations) against tinybvh's BuildAVX, alternated: 1 thread against
 # the anchor built single-threaded (where tiny_bvh.h is found), 2 threads against the shared (threaded) anchor.

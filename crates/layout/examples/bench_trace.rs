@@ -1,9 +1,10 @@
 //! Trace throughput of bvh2, bvh4 and bvh8 beside Embree and tinybvh, in one invocation (issue 19):
-//! `cargo run --release -p bvhlab-layout --example bench_trace -- [--runs N] [--rays N] [--tools DIR] [--axes all] SCENE...`
+//! `cargo run --release -p bvhlab-layout --example bench_trace -- [--runs N] [--rays N] [--tools DIR] [--axes all] [--bins N] SCENE...`
 //!
 //! Per scene: binned SAH (16 bins, leaf 2, c_T = 3, c_I = 2: `eval --build binned-sah`'s defaults;
 //! `--axes all`: 8 bins on all three axes, `binned-sah:axes=all:bins=8`, the tree tinybvh's BVH8_CPU
-//! is built from: its BuildAVX),
+//! is built from: its BuildAVX; `--bins N`: N bins instead, e.g. 32: the configuration whose build
+//! passes issue 19's build target on the dragon, `just bench-binned`),
 //! then bvhlab's timed paths (watertight f32 test, no counters) on 10^6 random rays of the anchors'
 //! kind: pairs of uniform points on the sphere around the scene box (radius half its diagonal, as
 //! `../shared/tools/*_anchor.cpp`), the ray starting at the first point towards the second with an
@@ -90,6 +91,7 @@ fn main() {
     let mut args = std::env::args().skip(1);
     let (mut runs, mut n_rays, mut tools) = (3usize, 1_000_000usize, "../shared/tools".to_string());
     let mut all_axes = false;
+    let mut bins: Option<u32> = None;
     let mut scenes = Vec::new();
     while let Some(a) = args.next() {
         match a.as_str() {
@@ -103,11 +105,12 @@ fn main() {
                     other => panic!("--axes largest|all, got {other:?}"),
                 }
             }
+            "--bins" => bins = Some(args.next().and_then(|v| v.parse().ok()).expect("--bins N")),
             _ => scenes.push(a),
         }
     }
     if scenes.is_empty() {
-        eprintln!("usage: bench_trace [--runs N] [--rays N] [--tools DIR] [--axes largest|all] SCENE...");
+        eprintln!("usage: bench_trace [--runs N] [--rays N] [--tools DIR] [--axes largest|all] [--bins N] SCENE...");
         std::process::exit(2);
     }
     let avx2 = {
@@ -121,7 +124,12 @@ fn main() {
         }
     };
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    let tree = if all_axes { "binned-sah:axes=all:bins=8" } else { "binned-sah (bins=16, largest axis)" };
+    let bins = bins.unwrap_or(if all_axes { 8 } else { 16 }).max(2);
+    let tree = if all_axes {
+        format!("binned-sah:axes=all:bins={bins}")
+    } else {
+        format!("binned-sah (bins={bins}, largest axis)")
+    };
     println!("# bench-trace: {n_rays} random rays, 1 thread unless said, median of {runs} runs; tree: {tree}; AVX2: {avx2}; loadavg at start: {}", load.trim());
     println!(
         "{:<16} {:>8} {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>8} {:>7} | {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8}",
@@ -143,9 +151,9 @@ fn main() {
         let tris = &scene.triangles;
         let (boxes, centers) = scene.boxes_and_centers();
         let opts = if all_axes {
-            binned_sah::BinnedOptions { bins: 8, axes: binned_sah::Axes::All, ..binned_sah::BinnedOptions::new(8) }
+            binned_sah::BinnedOptions { axes: binned_sah::Axes::All, ..binned_sah::BinnedOptions::new(bins) }
         } else {
-            binned_sah::BinnedOptions::new(16)
+            binned_sah::BinnedOptions::new(bins)
         };
         let bvh = binned_sah::build_with_options(&boxes, &centers, &opts, &TopDownConfig::default());
         let b = scene.bounds();
