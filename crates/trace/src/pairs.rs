@@ -98,10 +98,11 @@ impl Pairs {
 /// sign, which for finite products and non-inverted boxes is the same pair of values), the same
 /// culling margin and [`crate::accept`]'s order-free choice between equal distances. Leaves of
 /// four or more triangles go through `T::test_leaf` (four at once), smaller ones one triangle at a
-/// time inline (a call per leaf cost more than it saved).
+/// time inline (a call per leaf cost more than it saved). `AVX2`: the caller is compiled for AVX2
+/// (and the CPU has it), so the leaf test takes its AVX2 build.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-pub(crate) fn pairs_one<T: TriTest>(
+pub(crate) fn pairs_one<T: TriTest, const AVX2: bool>(
     pairs: &Pairs,
     tris: &[WTri],
     ray: &Ray,
@@ -114,7 +115,8 @@ pub(crate) fn pairs_one<T: TriTest>(
     let mut tr: Option<T::Ray> = None;
     stack.clear();
     let o = ray.origin.to_array();
-    // SAFETY: SSE is in the x86-64 baseline; every pair index followed was checked by `Pairs::new`.
+    // SAFETY: SSE is in the x86-64 baseline, and AVX2 where `AVX2` says so (the caller's
+    // contract); every pair index followed was checked by `Pairs::new`.
     unsafe {
         let (ox, oy, oz) = (_mm_set1_ps(o[0]), _mm_set1_ps(o[1]), _mm_set1_ps(o[2]));
         let (ix, iy, iz) = (
@@ -129,10 +131,20 @@ pub(crate) fn pairs_one<T: TriTest>(
             if count > 0 {
                 let first = (child as usize).min(tris.len());
                 let end = first.saturating_add(count as usize).min(tris.len());
-                let tr = &*tr.get_or_insert_with(|| T::prepare(ray, &inv));
+                let tr = &*tr.get_or_insert_with(|| {
+                    if AVX2 {
+                        T::prepare_avx2(ray, &inv)
+                    } else {
+                        T::prepare(ray, &inv)
+                    }
+                });
                 let leaf = &tris[first..end];
                 if leaf.len() >= 4 {
-                    T::test_leaf(tr, leaf, &mut best);
+                    if AVX2 {
+                        T::test_leaf_avx2(tr, leaf, &mut best);
+                    } else {
+                        T::test_leaf(tr, leaf, &mut best);
+                    }
                 } else {
                     // Small leaves (most of the thesis' trees) inline, one triangle at a time.
                     for tri in leaf {
