@@ -17,7 +17,7 @@
 //!   same hits).
 #[cfg(target_arch = "x86_64")]
 use crate::pairs::pairs_one;
-use crate::pairs::Pairs;
+use crate::pairs::{Arena, Pairs};
 use crate::packs::Tri4;
 use crate::{accept, intersect_triangle, Hit, Ray, RayBox, Stack, TraceStats, SLAB_ROBUST};
 use bvhlab_bvh::{Bvh, Node};
@@ -769,20 +769,35 @@ type PairStacks = (Stack, Stack<(u32, u32, f32)>);
 /// per node), the flat nodes for the rays the pairs do not take, and its triangles in slot order.
 pub struct FastBvh2<'a> {
     nodes: &'a [Node],
+    /// The triangles, unless the arena holds them.
     store: TriStore,
-    /// The inner nodes as child pairs (the timed path's layout, x86-64 only: an SSE test), unless
-    /// the root is a leaf or the tree is malformed.
+    /// The inner nodes as child pairs and the triangles after them in one arena (the timed path's
+    /// layout, x86-64 only: an SSE test), unless the root is a leaf or the tree is malformed.
     #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
-    pairs: Option<Pairs>,
+    pairs: Option<Arena>,
 }
 
 impl<'a> FastBvh2<'a> {
     /// O(triangles): copies the triangles into slot order (done before timing).
     pub fn new(bvh: &'a Bvh, tris: &[Triangle]) -> FastBvh2<'a> {
-        FastBvh2 {
-            nodes: &bvh.nodes,
-            store: TriStore::new(&bvh.prim_indices, tris),
-            pairs: if cfg!(target_arch = "x86_64") { Pairs::new(&bvh.nodes) } else { None },
+        let mut store = TriStore::new(&bvh.prim_indices, tris);
+        let pairs = if cfg!(target_arch = "x86_64") {
+            Pairs::new(&bvh.nodes).and_then(|p| Arena::new(&p, &store.tris))
+        } else {
+            None
+        };
+        if pairs.is_some() {
+            // The arena holds the triangles; the flat traversal reads them there (see `tris`).
+            store.tris = Vec::new();
+        }
+        FastBvh2 { nodes: &bvh.nodes, store, pairs }
+    }
+
+    /// The triangles in slot order: the arena's when there is one, else the store's.
+    fn tris(&self) -> &[WTri] {
+        match &self.pairs {
+            Some(a) => a.tris(),
+            None => &self.store.tris,
         }
     }
 
@@ -794,7 +809,8 @@ impl<'a> FastBvh2<'a> {
         #[cfg(target_arch = "x86_64")]
         if let Some(p) = &self.pairs {
             // The pairs and the leaf test in their AVX2 build where the CPU has it: the same hits in
-            // fewer instructions (callgrind, dragon: 1,097 -> 940 per ray; 1-2 % faster, docs/decisions.md).
+            // fewer instructions (callgrind, dragon: 1,097 -> 940 per ray; 1-2 % faster; the arena's
+            // offsets then 940 -> 818 and 5-9 % faster, docs/decisions.md).
             let avx2 = std::is_x86_feature_detected!("avx2");
             let mut hits = vec![Hit::NONE; rays.len()];
             hits.par_chunks_mut(CHUNK)
@@ -820,7 +836,7 @@ impl<'a> FastBvh2<'a> {
     /// VEX-encoded (three operands, no register copies; no FMA), so the same hits.
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    fn pairs_chunk<const AVX2: bool>(&self, p: &Pairs, rays: &[Ray], hits: &mut [Hit], stacks: &mut PairStacks) {
+    fn pairs_chunk<const AVX2: bool>(&self, p: &Arena, rays: &[Ray], hits: &mut [Hit], stacks: &mut PairStacks) {
         let nodes = self.nodes;
         let (flat, paired) = stacks;
         for (h, ray) in hits.iter_mut().zip(rays) {
@@ -837,7 +853,7 @@ impl<'a> FastBvh2<'a> {
             {
                 Hit::NONE
             } else {
-                pairs_one::<Watertight, AVX2>(p, &self.store.tris, ray, sr.inv, paired)
+                pairs_one::<Watertight, AVX2>(p, ray, sr.inv, paired)
             };
         }
     }
@@ -848,7 +864,7 @@ impl<'a> FastBvh2<'a> {
     /// The CPU must have AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn pairs_chunk_avx2(&self, p: &Pairs, rays: &[Ray], hits: &mut [Hit], stacks: &mut PairStacks) {
+    unsafe fn pairs_chunk_avx2(&self, p: &Arena, rays: &[Ray], hits: &mut [Hit], stacks: &mut PairStacks) {
         self.pairs_chunk::<true>(p, rays, hits, stacks)
     }
 
@@ -873,14 +889,14 @@ impl<'a> FastBvh2<'a> {
         if sr.parallel {
             bvh2_one::<T, RayBox, STATS>(
                 self.nodes,
-                &self.store.tris,
+                self.tris(),
                 ray,
                 &RayBox::new(ray),
                 sr.inv,
                 stack,
             )
         } else {
-            bvh2_one::<T, SlabRay, STATS>(self.nodes, &self.store.tris, ray, &sr, sr.inv, stack)
+            bvh2_one::<T, SlabRay, STATS>(self.nodes, self.tris(), ray, &sr, sr.inv, stack)
         }
     }
 }

@@ -303,6 +303,33 @@ fn one_pass_root_test_equals_the_slab_test() {
     assert!(n > 100_000 && hits > 10_000 && hits < n - 10_000, "{n} cases, {hits} entered");
 }
 
+/// The timed path's arena names each child by its offset: a pair's at 4 units per pair, a leaf's
+/// first triangle after the pairs at 3 units per slot; its triangles are the store's. A leaf range
+/// past the triangles gives no arena.
+#[test]
+fn arena_offsets_name_the_pairs_and_the_leaf_triangles() {
+    use bvhlab_trace::pairs::{Arena, Pairs};
+    use bvhlab_trace::TriStore;
+    let tris = random_triangles(2000, 0.05, 13);
+    for bvh in [median_bvh(&tris, 1), median_bvh(&tris, 5), caterpillar(&tris[..300])] {
+        let pairs = Pairs::new(&bvh.nodes).expect("pairs");
+        let store = TriStore::new(&bvh.prim_indices, &tris);
+        let arena = Arena::new(&pairs, &store.tris).expect("arena");
+        assert!(arena.tris() == &store.tris[..]);
+        let np = pairs.pairs().len() as u32;
+        assert_eq!(arena.pairs().len(), pairs.pairs().len());
+        for (a, p) in arena.pairs().iter().zip(pairs.pairs()) {
+            assert_eq!(a.axis, p.axis);
+            assert_eq!(a.count, p.count);
+            for side in 0..2 {
+                let want = if p.count[side] > 0 { 4 * np + 3 * p.child[side] } else { 4 * p.child[side] };
+                assert_eq!(a.child[side], want);
+            }
+        }
+        assert!(Arena::new(&pairs, &store.tris[..store.tris.len() - 1]).is_none(), "the last leaf ends past the triangles");
+    }
+}
+
 /// The child-pair layout of the timed path holds every inner node's two children once, with the
 /// children's boxes and leaf ranges as they are; a malformed tree gives none (the flat traversal
 /// then serves every ray, with the same hits).

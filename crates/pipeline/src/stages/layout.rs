@@ -24,7 +24,9 @@ use std::collections::BTreeMap;
 /// 5: timed runs of calls shorter than 10 ms are batched (`crate::batch`): every time is re-measured.
 /// 6: bvh2's timed traversal runs in an AVX2 build where the CPU has it; every layout's slowdown is
 ///    against bvh2's time, so every layout node is timed again.
-pub const LAYOUT_VERSION: u32 = 6;
+/// 7: bvh2's timed traversal reads one arena of pairs and triangles by offsets (faster, same hits);
+///    every layout's slowdown is against bvh2's time, so every layout node is timed again.
+pub const LAYOUT_VERSION: u32 = 7;
 
 /// A layout request: a layout with its parameters, or the `auto` search (Kilian 2021 layouts; the
 /// chosen one then behaves as if it had been given).

@@ -30,7 +30,9 @@ use std::collections::BTreeMap;
 /// 10: timed runs of calls shorter than 10 ms are batched (`crate::batch`): every time is re-measured.
 /// 11: bvh2's timed traversal runs in an AVX2 build where the CPU has it (same hits, ~1-2 % faster):
 ///    every timed bvh2 anchor is re-measured.
-pub const MEASURE_VERSION: u32 = 11;
+/// 12: bvh2's timed traversal names children by offsets in one arena of pairs and triangles
+///    (`bvhlab_trace::pairs::Arena`: same hits, 5-9 % faster): every timed bvh2 anchor is re-measured.
+pub const MEASURE_VERSION: u32 = 12;
 
 /// A ray set of the measure stage (thesis 4.4).
 #[derive(Clone, Copy, Debug, PartialEq)]
