@@ -219,6 +219,20 @@ pub(crate) fn partition_known_bounds<R: Ref>(
     r.split(r.begin + mid, (lb, lcb), (rb, rcb))
 }
 
+/// [`partition_known_bounds`] where the children's centroid bounds are known too (from the bins):
+/// the partition alone.
+#[inline(always)]
+pub(crate) fn partition_known_all<R: Ref>(
+    refs: &mut [R],
+    r: &Range,
+    left: (BoxA, BoxA),
+    right: (BoxA, BoxA),
+    is_left: impl Fn(&R) -> bool,
+) -> (Range, Range) {
+    let mid = hoare_blocks(&mut refs[r.begin..r.end], &is_left);
+    r.split(r.begin + mid, left, right)
+}
+
 /// Elements per block of [`hoare_blocks`].
 const BLOCK: usize = 128;
 const _: () = assert!(BLOCK.is_power_of_two() && 2 * BLOCK <= 256);
