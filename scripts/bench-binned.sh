@@ -2,15 +2,17 @@
 # issue 19.4: binned SAH build time and SAH cost against tinybvh's BuildAVX (../shared/tools/tinybvh-anchor),
 # 1 thread, alternated in one run on the same machine (ours, anchor, ours, anchor, ...).
 #
-# Usage: scripts/bench-binned.sh [runs=5] [rounds=3] [VARIANTS] [SCENES...]
+# Usage: scripts/bench-binned.sh [runs=3] [rounds=7] [VARIANTS] [SCENES...]
 #   VARIANTS: comma-separated build_bench names (default: the thesis configuration `binned-sah`
 #   (16 bins), the same with 32 bins, and the all-axes ones `binned-sah:axes=all:bins=8`,
 #   `binned-sah:axes=all`).
 #   SCENES: default stanford_dragon and conference from ../shared/scenes.
-# Each round runs every variant `runs` times (its median) and then the anchor `runs` times (its medians);
-# the table shows the median over the rounds, the SAH cost, and the ratio to BuildAVX with the goal
-# (time <= 1.00x at SAH <= BuildAVX's + 1 %). `uptime` is printed before and after: others' load skews
-# both sides, which is why only same-run ratios count.
+# Each round runs every variant `runs` times in one process (its median) next to the single-thread BuildAVX
+# `runs` times in the process before or after it (the order alternates), and keeps that pair's ratio: this
+# machine's speed drifts by 20-40 % over minutes, and two processes seconds apart see the same phase where
+# medians over minutes do not. The table shows the median time over the rounds, the SAH cost, the median of
+# the paired ratios with how many rounds were faster, and the goal (paired ratio <= 1.00x at SAH <=
+# BuildAVX's + 1 %). `uptime` is printed before and after: others' load skews both sides.
 #
 # ../shared/tools/tinybvh-anchor is not single-threaded: tinybvh builds scenes of 50k+ triangles with its
 # job system (MT_BUILD_THRESHOLD; measured: up to 60 threads and both cores busy during its builds). Where
@@ -24,8 +26,8 @@ shared="$repo/../shared"
 anchor="$shared/tools/tinybvh-anchor"
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$repo/target}
 bench="$CARGO_TARGET_DIR/release/examples/build_bench"
-runs=${1:-5}
-rounds=${2:-3}
+runs=${1:-3}
+rounds=${2:-7}
 variants=${3:-binned-sah,binned-sah:bins=32,binned-sah:axes=all:bins=8,binned-sah:axes=all}
 shift $(( $# < 3 ? $# : 3 ))
 scenes=("$@")
@@ -59,6 +61,22 @@ if [[ -n "$header" && -f "$header" && -f "$shared/tools/tinybvh_anchor.cpp" ]] &
       echo "note: could not build the single-thread anchor: only the threaded one" >&2
       anchor1=""
     fi
+    rm -f "$dir/tinybvh-buildavx-1t"
+  fi
+  # The same source reduced to BuildAVX (its other builders and the trace skipped): ~2 s per process on
+  # the dragon instead of ~23 s, so it can run right next to each of bvhlab's processes. Made by editing a
+  # copy of the anchor's main loop; where the edit does not apply (another anchor source) the full
+  # single-thread anchor is paired instead.
+  avxonly="$dir/tinybvh-buildavx-1t"
+  if [[ -n "$anchor1" && ! -x "$avxonly" ]]; then
+    sed -e 's|for (int m = 0; m < 5; m++) {|for (int m = 2; m < 3; m++) {|' \
+        -e 's|^  // Random rays: pairs of uniform points.*|  printf("}\\n"); return 0;|' \
+        "$dir/tinybvh_anchor.cpp" >"$dir/tinybvh_buildavx.cpp"
+    if ! { grep -q 'm = 2; m < 3' "$dir/tinybvh_buildavx.cpp" && grep -q '^  printf("}\\n"); return 0;' "$dir/tinybvh_buildavx.cpp" \
+         && g++ -O3 -march=x86-64-v3 -std=c++17 -DNO_THREADED_BUILDS "$dir/tinybvh_buildavx.cpp" -o "$avxonly" -lpthread; }; then
+      echo "note: could not reduce the anchor to BuildAVX: pairing with the full single-thread anchor" >&2
+      avxonly="$anchor1"
+    fi
   fi
 else
   echo "note: tiny_bvh.h, g++ or the anchor source not found: only the threaded anchor (set TINYBVH_H=path/to/tiny_bvh.h)" >&2
@@ -68,55 +86,62 @@ field() { sed -n "s/.*\"$2\":\([-0-9.eE+]*\).*/\1/p" <<<"$1"; }
 part() { sed -n "s/.*\"$2\":{\([^}]*\)}.*/\1/p" <<<"$1"; }
 med() { sort -g | awk '{a[NR]=$1} END {if (NR == 0) print ""; else if (NR % 2) print a[(NR+1)/2]; else printf "%.2f\n", (a[NR/2]+a[NR/2+1])/2}'; }
 
+# The partner of each of bvhlab's processes: BuildAVX alone on 1 thread where it could be built, else the
+# full single-thread anchor, else the threaded one.
+pair_anchor=${avxonly:-${anchor1:-$anchor}}
+[[ -x "$pair_anchor" ]] || pair_anchor=${anchor1:-$anchor}
+[[ -x "$pair_anchor" ]] || pair_anchor=$anchor
 echo "load before: $(uptime)"
 for scene in "${scenes[@]}"; do
-  declare -A ms=() sah=()
-  avx_ms=() avx_sah="" avx1_ms=() avx1_sah="" par2_ms=()
+  declare -A ms=() sah=() ratio=() ams=()
+  avx_ms=() avx_sah="" avx1_sah="" par2_ms=()
+  IFS=, read -ra names <<<"$variants"
   for ((r = 0; r < rounds; r++)); do
-    out=$("$bench" "$scene" "$runs" 1 "$variants")
-    while IFS= read -r line; do
-      [[ -z "$line" ]] && continue
-      name=$(sed -n 's/.*"builder":"\([^"]*\)".*/\1/p' <<<"$line")
-      ms[$name]="${ms[$name]:-} $(field "$line" build_ms_median)"
-      sah[$name]=$(field "$line" sah_cost)
-    done <<<"$out"
-    a=$("$anchor" "$scene" "$runs")
-    avx=$(part "$a" binned_sah_avx)
-    avx_ms+=("$(field "$avx" build_ms_median)")
-    avx_sah=$(field "$avx" sah_cost)
-    if [[ -n "$anchor1" ]]; then
-      avx1=$(part "$("$anchor1" "$scene" "$runs" || true)" binned_sah_avx)
-      avx1_ms+=("$(field "$avx1" build_ms_median)")
-      avx1_sah=$(field "$avx1" sah_cost)
+    for ((v = 0; v < ${#names[@]}; v++)); do
+      name=${names[$v]}
+      ours() { out=$("$bench" "$scene" "$runs" 1 "$name"); }
+      theirs() { a=$(part "$("$pair_anchor" "$scene" "$runs" || true)" binned_sah_avx); }
+      # Adjacent processes, the order alternating, so neither side always runs first.
+      if (( (r + v) % 2 == 0 )); then ours; theirs; else theirs; ours; fi
+      t=$(field "$out" build_ms_median)
+      ta=$(field "$a" build_ms_median)
+      ms[$name]="${ms[$name]:-} $t"
+      ams[$name]="${ams[$name]:-} $ta"
+      ratio[$name]="${ratio[$name]:-} $(awk -v a="$t" -v b="$ta" 'BEGIN { printf "%.3f", a / b }')"
+      sah[$name]=$(field "$out" sah_cost)
+      avx1_sah=$(field "$a" sah_cost)
+    done
+    # The threaded anchor (as ../shared/tools builds it) and bvhlab's 2-thread build beside it, every
+    # other round (the anchor runs all its builders and a trace: ~20 s on the dragon).
+    if (( r % 2 == 0 )); then
+      avx=$(part "$("$anchor" "$scene" "$runs")" binned_sah_avx)
+      avx_ms+=("$(field "$avx" build_ms_median)")
+      avx_sah=$(field "$avx" sah_cost)
       par2_ms+=("$(field "$("$bench" "$scene" "$runs" 2 binned-sah-par)" build_ms_median)")
     fi
   done
   t_avx=$(printf '%s\n' "${avx_ms[@]}" | med)
-  # The 1-thread verdict's reference: the single-thread build where there is one.
-  t_ref=$t_avx ref="threaded anchor"
+  t_par=$(printf '%s\n' "${par2_ms[@]}" | med)
   echo
-  echo "$(basename "$scene"), $rounds rounds x $runs runs; tinybvh BuildAVX ${t_avx} ms as ../shared/tools builds it (threaded; rounds: ${avx_ms[*]}), SAH $avx_sah"
-  t1=$( { printf '%s\n' "${avx1_ms[@]}" | grep . || true; } | med)
-  if [[ -n "$anchor1" && -n "$t1" ]]; then
-    t_ref=$t1 ref="BuildAVX 1 thread"
-    # The single-thread build must be the same tree (its header may be another tinybvh version).
-    [[ "$avx1_sah" == "$avx_sah" ]] || echo "warning: the 1-thread anchor's SAH $avx1_sah differs from the threaded anchor's $avx_sah" >&2
-    t_par=$(printf '%s\n' "${par2_ms[@]}" | med)
-    echo "tinybvh BuildAVX 1 thread (-DNO_THREADED_BUILDS): ${t_ref} ms (rounds: ${avx1_ms[*]}); bvhlab binned-sah-par on 2 threads: ${t_par} ms (rounds: ${par2_ms[*]}) = $(awk -v a="$t_par" -v b="$t_avx" 'BEGIN { printf "%.2f", a / b }')x the threaded anchor"
-  fi
-  col1="vs 1-thr"
-  [[ "$t_ref" == "$t_avx" ]] && col1="vs thread"
-  printf '%-32s %9s %-26s %9s %10s %10s %9s %s\n' "variant (1 thread)" ms rounds sah_cost "$col1" "vs thread" sah_vs "verdict (vs $ref)"
-  IFS=, read -ra names <<<"$variants"
+  echo "$(basename "$scene"), $rounds rounds x $runs runs; tinybvh BuildAVX ${t_avx} ms as ../shared/tools builds it (threaded; rounds: ${avx_ms[*]}), SAH $avx_sah; bvhlab binned-sah-par on 2 threads: ${t_par} ms (rounds: ${par2_ms[*]}) = $(awk -v a="$t_par" -v b="$t_avx" 'BEGIN { printf "%.2f", a / b }')x the threaded anchor"
+  ref="threaded anchor"
+  [[ "$pair_anchor" == "$anchor" ]] || ref="BuildAVX 1 thread"
+  # The single-thread build must be the same tree (its header may be another tinybvh version).
+  [[ "$avx1_sah" == "$avx_sah" ]] || echo "warning: the paired anchor's SAH $avx1_sah differs from the threaded anchor's $avx_sah" >&2
+  echo "each variant paired with $ref ($(basename "$pair_anchor")) in the adjacent process; ratio = median of the $rounds paired ratios"
+  printf '%-28s %8s %8s %8s %8s %9s %10s %8s %s\n' "variant (1 thread)" ms anchor ratio faster sah_cost "vs thread" sah_vs "verdict (vs $ref)"
   for name in "${names[@]}"; do
     t=$(tr ' ' '\n' <<<"${ms[$name]}" | grep . | med)
-    ratio=$(awk -v a="$t" -v b="$t_ref" 'BEGIN { printf "%.2f", a / b }')
+    ta=$(tr ' ' '\n' <<<"${ams[$name]}" | grep . | med)
+    rr=$(tr ' ' '\n' <<<"${ratio[$name]}" | grep . | med)
+    faster=$(tr ' ' '\n' <<<"${ratio[$name]}" | grep . | awk '$1 < 1 { f++ } END { printf "%d/%d", f, NR }')
     ratio_mt=$(awk -v a="$t" -v b="$t_avx" 'BEGIN { printf "%.2f", a / b }')
     rel=$(awk -v a="${sah[$name]}" -v b="$avx_sah" 'BEGIN { printf "%+.1f%%", (a / b - 1) * 100 }')
-    ok=$(awk -v r="$ratio" -v a="${sah[$name]}" -v b="$avx_sah" 'BEGIN { print (r <= 1.0 && a <= b * 1.01) ? "PASS" : "MISS" }')
-    printf '%-32s %9s %-26s %9s %10s %10s %9s %s\n' "$name" "$t" "$(echo ${ms[$name]})" "${sah[$name]}" "${ratio}x" "${ratio_mt}x" "$rel" "$ok"
+    ok=$(awk -v r="$rr" -v a="${sah[$name]}" -v b="$avx_sah" 'BEGIN { print (r <= 1.0 && a <= b * 1.01) ? "PASS" : "MISS" }')
+    printf '%-28s %8s %8s %7sx %8s %9s %9sx %8s %s\n' "$name" "$t" "$ta" "$rr" "$faster" "${sah[$name]}" "$ratio_mt" "$rel" "$ok"
+    echo "  paired ratios: ${ratio[$name]# }"
   done
-  unset ms sah
+  unset ms sah ratio ams
 done
 echo
 echo "load after: $(uptime)"

@@ -51,7 +51,10 @@ pub const METHOD: Method = Method::new(
 //    indexing a vector by a run-time axis (a match): build times re-measured.
 // 4: the same trees; the children's centroid bounds gathered per bin during binning (no pass
 //    after the partition): build times re-measured.
-.with_version(4);
+// 5: the same trees; the largest-axis bins emptied after use (only the non-empty ones) instead of
+//    filled before, and the children's boxes unioned over the non-empty bins: build times
+//    re-measured.
+.with_version(5);
 
 /// Eq. 6's epsilon: shifts every centroid slightly left so the right boundary needs no special case.
 const BIN_EPSILON: f64 = 1e-5;
@@ -179,8 +182,14 @@ struct Binner {
     /// Left-sweep results: half area and count of bins `0..=i`.
     left_area: Vec<f32>,
     left_count: Vec<u32>,
-    /// [`Binner::sweep3`]'s scratch: the non-empty bins of one axis.
+    /// The non-empty bins of the axis swept last (`k` long, the first `m` used): the sweep visits
+    /// only these, and the largest-axis build unions and clears only these afterwards.
     nonempty: Vec<u32>,
+    m: usize,
+    /// Whether bins beyond the largest-axis build's invariant may be in use: [`Binner::bin3`]
+    /// fills all `3 k` bins itself and leaves them as they are; [`Binner::bin`] expects its `2 k`
+    /// bins empty (count 0, boxes empty), as [`Binner::clear_used`] leaves them.
+    dirty: bool,
 }
 
 /// The best binned split of a node.
@@ -188,6 +197,8 @@ struct Binner {
 struct BinSplit {
     /// Bins `0..=last_left_bin` go left.
     last_left_bin: usize,
+    /// How many of the swept axis' non-empty bins go left (`Binner::nonempty[..left_bins]`).
+    left_bins: usize,
     /// The axis binned (always the plan's axis with [`Axes::Largest`]).
     axis: usize,
     /// `SA_L * n_L + SA_R * n_R` (half areas, f64).
@@ -278,7 +289,9 @@ impl Binner {
             cbounds: vec![BoxA::EMPTY; 2 * k],
             left_area: vec![0.0; k],
             left_count: vec![0; k],
-            nonempty: Vec::with_capacity(k),
+            nonempty: vec![0; k],
+            m: 0,
+            dirty: false,
         }
     }
 
@@ -289,6 +302,7 @@ impl Binner {
         let k = self.k;
         self.count.fill(0);
         self.bounds.fill(BoxA::EMPTY);
+        self.dirty = true;
         let (cx, rest) = self.count.split_at_mut(k);
         let (cy, cz) = rest.split_at_mut(k);
         let (bx, rest) = self.bounds.split_at_mut(k);
@@ -313,12 +327,32 @@ impl Binner {
         (union(&b[..=last]), union(&b[last + 1..]))
     }
 
-    /// The centroid bounds of bins `0..=last` and of the rest ([`Binner::bin`] only).
+    /// After [`Binner::bin`] and [`Binner::sweep`]: the children's boxes and centroid bounds, the
+    /// unions of their non-empty bins (the same values as [`Binner::child_boxes`]: an empty bin is
+    /// the identity of min / max, and the order of the others is kept).
     #[inline(always)]
-    fn child_cbounds(&self, last: usize) -> (BoxA, BoxA) {
-        let b = &self.cbounds[..self.k];
-        let union = |bs: &[BoxA]| bs.iter().fold(BoxA::EMPTY, |a, b| a.union(b));
-        (union(&b[..=last]), union(&b[last + 1..]))
+    fn children_of_sweep(&self, best: &BinSplit) -> ((BoxA, BoxA), (BoxA, BoxA)) {
+        let (l, r) = self.nonempty[..self.m].split_at(best.left_bins);
+        let union = |ids: &[u32]| {
+            ids.iter().fold((BoxA::EMPTY, BoxA::EMPTY), |(b, c), &i| {
+                (b.union(&self.bounds[i as usize]), c.union(&self.cbounds[i as usize]))
+            })
+        };
+        (union(l), union(r))
+    }
+
+    /// Empties the bins [`Binner::bin`] filled (the non-empty ones found by [`Binner::sweep`]):
+    /// `bin` then needs no fill of all `k` bins, which cost small nodes (most of them, with fewer
+    /// primitives than bins) more than their binning.
+    #[inline(always)]
+    fn clear_used(&mut self) {
+        for &i in &self.nonempty[..self.m] {
+            let i = i as usize;
+            self.count[i] = 0;
+            self.bounds[i] = BoxA::EMPTY;
+            self.cbounds[i] = BoxA::EMPTY;
+        }
+        self.m = 0;
     }
 
     /// Adds another binner's bins (exact: counts add, boxes take min / max).
@@ -356,10 +390,13 @@ impl Binner {
     #[inline(always)]
     fn bin<R: Ref>(&mut self, prims: &[R], axis: usize, bins: &Bins) {
         let k = self.k;
+        if std::mem::take(&mut self.dirty) {
+            self.count.fill(0);
+            self.bounds.fill(BoxA::EMPTY);
+            self.cbounds.fill(BoxA::EMPTY);
+        }
+        debug_assert!(self.count[..2 * k].iter().all(|&c| c == 0));
         if prims.len() < DUAL_BINS_FROM {
-            self.count[..k].fill(0);
-            self.bounds[..k].fill(BoxA::EMPTY);
-            self.cbounds[..k].fill(BoxA::EMPTY);
             for p in prims {
                 let b = bin_of(p.c_axis(axis), bins, k);
                 self.count[b] += 1;
@@ -371,10 +408,8 @@ impl Binner {
         // Two sets of bins, alternate primitives to each, then merged: neighbours in memory tend
         // to fall in the same bin (coherent meshes, sorted scenes), and one set chains every such
         // update on the previous one's store. The merge is exact (counts add, boxes take min / max),
-        // so the bins are the single set's. The second set is the y-axis slots, unused here.
-        self.count[..2 * k].fill(0);
-        self.bounds[..2 * k].fill(BoxA::EMPTY);
-        self.cbounds[..2 * k].fill(BoxA::EMPTY);
+        // so the bins are the single set's. The second set is the y-axis slots, unused here, and
+        // emptied again by the merge.
         let (ca, cb) = self.count[..2 * k].split_at_mut(k);
         let (ba, bb) = self.bounds[..2 * k].split_at_mut(k);
         let (pa, pb) = self.cbounds[..2 * k].split_at_mut(k);
@@ -396,9 +431,9 @@ impl Binner {
             pa[i].grow_point(p.c());
         }
         for i in 0..k {
-            ca[i] += cb[i];
-            ba[i] = ba[i].union(&bb[i]);
-            pa[i] = pa[i].union(&pb[i]);
+            ca[i] += std::mem::take(&mut cb[i]);
+            ba[i] = ba[i].union(&std::mem::replace(&mut bb[i], BoxA::EMPTY));
+            pa[i] = pa[i].union(&std::mem::replace(&mut pb[i], BoxA::EMPTY));
         }
     }
 
@@ -424,14 +459,19 @@ impl Binner {
         let k = self.k;
         let count = &self.count[axis * k..(axis + 1) * k];
         let bounds = &self.bounds[axis * k..(axis + 1) * k];
-        // Gathered without a branch per bin (which bin is empty is as good as random).
-        self.nonempty.resize(k, 0);
+        // Gathered from a bit mask of the non-empty bins, 64 at a time (compares the compiler
+        // vectorizes), then one step per non-empty bin: small nodes have few of them.
         let mut m = 0;
-        for (i, &c) in count.iter().enumerate() {
-            // m <= i < k.
-            self.nonempty[m] = i as u32;
-            m += (c != 0) as usize;
+        for (w, word) in count.chunks(64).enumerate() {
+            let mut mask = word.iter().enumerate().fold(0u64, |a, (i, &c)| a | (((c != 0) as u64) << i));
+            while mask != 0 {
+                // m <= the bin's index < k.
+                self.nonempty[m] = (w * 64) as u32 + mask.trailing_zeros();
+                m += 1;
+                mask &= mask - 1;
+            }
         }
+        self.m = m;
         if m < 2 {
             return None;
         }
@@ -459,6 +499,7 @@ impl Binner {
             if best.is_none_or(|b| cost <= b.cost) {
                 best = Some(BinSplit {
                     last_left_bin: nonempty[j] as usize,
+                    left_bins: j + 1,
                     axis,
                     cost,
                 });
@@ -636,26 +677,30 @@ fn split<R: Ref>(
         }
     };
     binner.bin(&refs[r.begin..r.end], axis, &bins);
-    match decide(binner.sweep(s), r, axis, cfg, s) {
-        Decision::Leaf => None,
-        Decision::Median(axis) => Some(object_median(refs, r, axis)),
-        Decision::Split(best) => {
+    let decision = decide(binner.sweep(s), r, axis, cfg, s);
+    // The children's boxes and centroid bounds are the unions of their bins' (exact: min / max of
+    // the same values), so the partition only moves the primitives. Gathering the centroid bounds
+    // in the binning instead of a pass after the partition: +6 % instructions but a quarter fewer
+    // cache misses, 6-14 % faster builds (docs/decisions.md).
+    let children = match &decision {
+        Decision::Split(best) => Some(binner.children_of_sweep(best)),
+        _ => None,
+    };
+    binner.clear_used();
+    match (decision, children) {
+        (Decision::Split(best), Some((lbs, rbs))) => {
             // Re-applying the binning formula decides each primitive's side (thesis 3.1.1); it is
             // the same float expression as in `bin`, so the sides match the counts the SAH was
             // computed from.
             let last = best.last_left_bin;
-            // The children's boxes and centroid bounds are the unions of their bins' (exact: min /
-            // max of the same values), so the partition only moves the primitives. Gathering the
-            // centroid bounds in the binning instead of a pass after the partition: +6 %
-            // instructions but a quarter fewer cache misses, 6-14 % faster builds (docs/decisions.md).
-            let (lb, rb) = binner.child_boxes(0, last);
-            let (lcb, rcb) = binner.child_cbounds(last);
-            let (left, right) = partition_known_all(refs, r, (lb, lcb), (rb, rcb), |p| {
+            let (left, right) = partition_known_all(refs, r, lbs, rbs, |p| {
                 bin_of(p.c_axis(axis), &bins, k) <= last
             });
             debug_assert!(left.len() > 0 && right.len() > 0);
             Some((left, right))
         }
+        (Decision::Median(axis), _) => Some(object_median(refs, r, axis)),
+        _ => None,
     }
 }
 
@@ -925,6 +970,60 @@ mod tests {
                 let avx = build_refs::<PrimRef>(&boxes, &shifted, &opts, &cfg, true);
                 assert!(sse.canonical_bytes() == avx.canonical_bytes(), "{spec} {opts:?} other centres");
             }
+        }
+    }
+
+    /// A binner reused node after node (bins emptied after use, not filled before) bins, sweeps
+    /// and gives children exactly as a fresh one does with every bin visited, small and large
+    /// nodes, 16 and 32 bins, also after an all-axes binning left every bin in use.
+    #[test]
+    fn reused_binner_equals_a_fresh_one() {
+        let (boxes, centers) = bvhlab_geom::load_scene("gen:sphere:n=3000").unwrap().boxes_and_centers();
+        let (refs, root) = make_refs::<BoxRef>(&boxes, &centers);
+        let s = scene_scale(&root);
+        let opts = BinnedOptions::new(16);
+        let cfg = TopDownConfig::default();
+        for k in [16usize, 32] {
+            let mut reused = Binner::new(k);
+            // Slices of many sizes and places: fewer primitives than bins, and both binning loops.
+            let mut splits = 0;
+            for (i, len) in [1usize, 3, 7, 40, 63, 64, 65, 200, 1000, 2, 17, 500].into_iter().cycle().take(40).enumerate() {
+                let begin = (i * 211) % (refs.len() - len);
+                let part = &refs[begin..begin + len];
+                let (b, c) = crate::primref::bounds_of(part);
+                let r = Range { begin: 0, end: len, bounds: b, cbounds: c };
+                if i % 7 == 3 {
+                    // Leaves every bin of all three axes in use.
+                    let all = BinnedOptions { axes: Axes::All, ..BinnedOptions::new(k as u32) };
+                    if let Plan::Bin3 { bins } = plan(&r, k, &TopDownConfig::default(), &all, s) {
+                        reused.bin3(part, &bins);
+                    }
+                }
+                let Plan::Bin { axis, bins } = plan(&r, k, &TopDownConfig { leaf: 1, ..cfg }, &opts, s) else {
+                    continue;
+                };
+                let mut fresh = Binner::new(k);
+                fresh.bin(part, axis, &bins);
+                reused.bin(part, axis, &bins);
+                assert_eq!(fresh.count[..k], reused.count[..k], "k {k} slice {i}");
+                assert_eq!(fresh.bounds[..k], reused.bounds[..k], "k {k} slice {i}");
+                assert_eq!(fresh.cbounds[..k], reused.cbounds[..k], "k {k} slice {i}");
+                let (a, b) = (fresh.sweep(s), reused.sweep(s));
+                assert_eq!(a.map(|a| (a.last_left_bin, a.cost.to_bits())), b.map(|b| (b.last_left_bin, b.cost.to_bits())));
+                if let Some(best) = b {
+                    splits += 1;
+                    let last = best.last_left_bin;
+                    let union = |bs: &[BoxA]| bs.iter().fold(BoxA::EMPTY, |a, b| a.union(b));
+                    let every = (
+                        (union(&fresh.bounds[..=last]), union(&fresh.cbounds[..=last])),
+                        (union(&fresh.bounds[last + 1..k]), union(&fresh.cbounds[last + 1..k])),
+                    );
+                    assert_eq!(reused.children_of_sweep(&best), every, "k {k} slice {i}");
+                }
+                reused.clear_used();
+                assert!(reused.count.iter().all(|&c| c == 0) || reused.dirty);
+            }
+            assert!(splits > 20, "{splits}");
         }
     }
 

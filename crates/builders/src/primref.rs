@@ -337,7 +337,7 @@ pub(crate) fn object_median<R: Ref>(refs: &mut [R], r: &Range, axis: usize) -> (
 
 /// Bounds and centroid bounds of a slice of references.
 #[inline]
-fn bounds_of<R: Ref>(part: &[R]) -> (BoxA, BoxA) {
+pub(crate) fn bounds_of<R: Ref>(part: &[R]) -> (BoxA, BoxA) {
     let (mut b, mut cb) = (BoxA::EMPTY, BoxA::EMPTY);
     for p in part {
         b.grow(p.min(), p.max());
