@@ -77,7 +77,7 @@ bench-trace RUNS="3" *SCENES="":
 
 # issue 19.4: binned SAH (thesis and all-axes configurations) against tinybvh's BuildAVX, alternated: 1 thread against
 # the anchor built single-threaded (where tiny_bvh.h is found), 2 threads against the shared (threaded) anchor.
-bench-binned RUNS="3" ROUNDS="7":
+bench-binned RUNS="11" ROUNDS="3":
     bash scripts/bench-binned.sh {{RUNS}} {{ROUNDS}}
 
 # Peak RSS and build heap of each builder on a scene (default the dragon), one process per builder.

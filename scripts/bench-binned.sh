@@ -1,18 +1,20 @@
 #!/usr/bin/env bash
 # issue 19.4: binned SAH build time and SAH cost against tinybvh's BuildAVX (../shared/tools/tinybvh-anchor),
-# 1 thread, alternated in one run on the same machine (ours, anchor, ours, anchor, ...).
+# 1 thread, build by build alternated with BuildAVX (ours, anchor, anchor, ours, ...).
 #
-# Usage: scripts/bench-binned.sh [runs=3] [rounds=7] [VARIANTS] [SCENES...]
+# Usage: scripts/bench-binned.sh [runs=11] [rounds=3] [VARIANTS] [SCENES...]
 #   VARIANTS: comma-separated build_bench names (default: the thesis configuration `binned-sah`
 #   (16 bins), the same with 32 bins, and the all-axes ones `binned-sah:axes=all:bins=8`,
 #   `binned-sah:axes=all`).
 #   SCENES: default stanford_dragon and conference from ../shared/scenes.
-# Each round runs every variant `runs` times in one process (its median) next to the single-thread BuildAVX
-# `runs` times in the process before or after it (the order alternates), and keeps that pair's ratio: this
-# machine's speed drifts by 20-40 % over minutes, and two processes seconds apart see the same phase where
-# medians over minutes do not. The table shows the median time over the rounds, the SAH cost, the median of
-# the paired ratios with how many rounds were faster, and the goal (paired ratio <= 1.00x at SAH <=
-# BuildAVX's + 1 %). `uptime` is printed before and after: others' load skews both sides.
+# Each round runs every variant in one build_bench process that alternates its `runs` builds one by one with
+# those of tinybvh's BuildAVX on one thread, served by a second process that loaded the scene once
+# (scripts/anchors/tinybvh_buildavx_serve.cpp; BUILD_BENCH_PAIR), the order alternating: this machine's
+# speed drifts by 20-40 % within minutes, even between processes seconds apart, and builds milliseconds
+# apart see the same phase. The table shows the median times, the SAH costs, the median of the rounds'
+# paired-ratio medians with how many pairs were faster, and the goal (paired ratio <= 1.00x at SAH <=
+# BuildAVX's + 1 %). Where the served BuildAVX cannot be built, a variant's process is paired with an
+# anchor process right before or after it instead. `uptime` is printed before and after.
 #
 # ../shared/tools/tinybvh-anchor is not single-threaded: tinybvh builds scenes of 50k+ triangles with its
 # job system (MT_BUILD_THRESHOLD; measured: up to 60 threads and both cores busy during its builds). Where
@@ -26,8 +28,8 @@ shared="$repo/../shared"
 anchor="$shared/tools/tinybvh-anchor"
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$repo/target}
 bench="$CARGO_TARGET_DIR/release/examples/build_bench"
-runs=${1:-3}
-rounds=${2:-7}
+runs=${1:-11}
+rounds=${2:-3}
 variants=${3:-binned-sah,binned-sah:bins=32,binned-sah:axes=all:bins=8,binned-sah:axes=all}
 shift $(( $# < 3 ? $# : 3 ))
 scenes=("$@")
@@ -61,21 +63,16 @@ if [[ -n "$header" && -f "$header" && -f "$shared/tools/tinybvh_anchor.cpp" ]] &
       echo "note: could not build the single-thread anchor: only the threaded one" >&2
       anchor1=""
     fi
-    rm -f "$dir/tinybvh-buildavx-1t"
+    rm -f "$dir/tinybvh-buildavx-serve"
   fi
-  # The same source reduced to BuildAVX (its other builders and the trace skipped): ~2 s per process on
-  # the dragon instead of ~23 s, so it can run right next to each of bvhlab's processes. Made by editing a
-  # copy of the anchor's main loop; where the edit does not apply (another anchor source) the full
-  # single-thread anchor is paired instead.
-  avxonly="$dir/tinybvh-buildavx-1t"
-  if [[ -n "$anchor1" && ! -x "$avxonly" ]]; then
-    sed -e 's|for (int m = 0; m < 5; m++) {|for (int m = 2; m < 3; m++) {|' \
-        -e 's|^  // Random rays: pairs of uniform points.*|  printf("}\\n"); return 0;|' \
-        "$dir/tinybvh_anchor.cpp" >"$dir/tinybvh_buildavx.cpp"
-    if ! { grep -q 'm = 2; m < 3' "$dir/tinybvh_buildavx.cpp" && grep -q '^  printf("}\\n"); return 0;' "$dir/tinybvh_buildavx.cpp" \
-         && g++ -O3 -march=x86-64-v3 -std=c++17 -DNO_THREADED_BUILDS "$dir/tinybvh_buildavx.cpp" -o "$avxonly" -lpthread; }; then
-      echo "note: could not reduce the anchor to BuildAVX: pairing with the full single-thread anchor" >&2
-      avxonly="$anchor1"
+  # BuildAVX served one build at a time (scripts/anchors/tinybvh_buildavx_serve.cpp, which includes the
+  # anchor's source): build_bench alternates its own builds with this one's (BUILD_BENCH_PAIR).
+  serve="$dir/tinybvh-buildavx-serve"
+  if [[ -n "$anchor1" && ( ! -x "$serve" || "$repo/scripts/anchors/tinybvh_buildavx_serve.cpp" -nt "$serve" ) ]]; then
+    if ! { cp "$repo/scripts/anchors/tinybvh_buildavx_serve.cpp" "$dir/" \
+         && g++ -O3 -march=x86-64-v3 -std=c++17 -DNO_THREADED_BUILDS -I "$dir" "$dir/tinybvh_buildavx_serve.cpp" -o "$serve" -lpthread; }; then
+      echo "note: could not build the served BuildAVX: no paired single-thread verdict" >&2
+      serve=""
     fi
   fi
 else
@@ -86,30 +83,43 @@ field() { sed -n "s/.*\"$2\":\([-0-9.eE+]*\).*/\1/p" <<<"$1"; }
 part() { sed -n "s/.*\"$2\":{\([^}]*\)}.*/\1/p" <<<"$1"; }
 med() { sort -g | awk '{a[NR]=$1} END {if (NR == 0) print ""; else if (NR % 2) print a[(NR+1)/2]; else printf "%.2f\n", (a[NR/2]+a[NR/2+1])/2}'; }
 
-# The partner of each of bvhlab's processes: BuildAVX alone on 1 thread where it could be built, else the
-# full single-thread anchor, else the threaded one.
-pair_anchor=${avxonly:-${anchor1:-$anchor}}
-[[ -x "$pair_anchor" ]] || pair_anchor=${anchor1:-$anchor}
+# Without the served BuildAVX, each of bvhlab's processes is paired with an anchor process right before
+# or after it (the full single-thread anchor where it was built, else the threaded one).
+pair_anchor=${anchor1:-$anchor}
 [[ -x "$pair_anchor" ]] || pair_anchor=$anchor
+serve=${serve:-}
 echo "load before: $(uptime)"
 for scene in "${scenes[@]}"; do
-  declare -A ms=() sah=() ratio=() ams=()
+  declare -A ms=() sah=() ratio=() ams=() fast=()
   avx_ms=() avx_sah="" avx1_sah="" par2_ms=()
   IFS=, read -ra names <<<"$variants"
   for ((r = 0; r < rounds; r++)); do
     for ((v = 0; v < ${#names[@]}; v++)); do
       name=${names[$v]}
-      ours() { out=$("$bench" "$scene" "$runs" 1 "$name"); }
-      theirs() { a=$(part "$("$pair_anchor" "$scene" "$runs" || true)" binned_sah_avx); }
-      # Adjacent processes, the order alternating, so neither side always runs first.
-      if (( (r + v) % 2 == 0 )); then ours; theirs; else theirs; ours; fi
-      t=$(field "$out" build_ms_median)
-      ta=$(field "$a" build_ms_median)
+      if [[ -n "$serve" ]]; then
+        # Build by build: build_bench alternates its builds with the served BuildAVX's.
+        out=$(BUILD_BENCH_PAIR="$serve" "$bench" "$scene" "$runs" 1 "$name")
+        t=$(field "$out" build_ms_median)
+        ta=$(field "$out" anchor_ms_median)
+        rr=$(field "$out" paired_ratio_median)
+        f=$(sed -n 's/.*"paired_faster":"\([0-9]*\)\/.*/\1/p' <<<"$out")
+        avx1_sah=$(field "$out" anchor_sah)
+      else
+        ours() { out=$("$bench" "$scene" "$runs" 1 "$name"); }
+        theirs() { a=$(part "$("$pair_anchor" "$scene" "$runs" || true)" binned_sah_avx); }
+        # Adjacent processes, the order alternating, so neither side always runs first.
+        if (( (r + v) % 2 == 0 )); then ours; theirs; else theirs; ours; fi
+        t=$(field "$out" build_ms_median)
+        ta=$(field "$a" build_ms_median)
+        rr=$(awk -v a="$t" -v b="$ta" 'BEGIN { printf "%.3f", a / b }')
+        f=$(awk -v r="$rr" -v n="$runs" 'BEGIN { print (r < 1) ? n : 0 }')
+        avx1_sah=$(printf '%.3f' "$(field "$a" sah_cost)")
+      fi
       ms[$name]="${ms[$name]:-} $t"
       ams[$name]="${ams[$name]:-} $ta"
-      ratio[$name]="${ratio[$name]:-} $(awk -v a="$t" -v b="$ta" 'BEGIN { printf "%.3f", a / b }')"
+      ratio[$name]="${ratio[$name]:-} $rr"
+      fast[$name]=$(( ${fast[$name]:-0} + f ))
       sah[$name]=$(field "$out" sah_cost)
-      avx1_sah=$(field "$a" sah_cost)
     done
     # The threaded anchor (as ../shared/tools builds it) and bvhlab's 2-thread build beside it, every
     # other round (the anchor runs all its builders and a trace: ~20 s on the dragon).
@@ -124,24 +134,29 @@ for scene in "${scenes[@]}"; do
   t_par=$(printf '%s\n' "${par2_ms[@]}" | med)
   echo
   echo "$(basename "$scene"), $rounds rounds x $runs runs; tinybvh BuildAVX ${t_avx} ms as ../shared/tools builds it (threaded; rounds: ${avx_ms[*]}), SAH $avx_sah; bvhlab binned-sah-par on 2 threads: ${t_par} ms (rounds: ${par2_ms[*]}) = $(awk -v a="$t_par" -v b="$t_avx" 'BEGIN { printf "%.2f", a / b }')x the threaded anchor"
-  ref="threaded anchor"
-  [[ "$pair_anchor" == "$anchor" ]] || ref="BuildAVX 1 thread"
+  ref="BuildAVX 1 thread"
+  [[ -n "$serve" || "$pair_anchor" != "$anchor" ]] || ref="threaded anchor"
   # The single-thread build must be the same tree (its header may be another tinybvh version).
-  [[ "$avx1_sah" == "$avx_sah" ]] || echo "warning: the paired anchor's SAH $avx1_sah differs from the threaded anchor's $avx_sah" >&2
-  echo "each variant paired with $ref ($(basename "$pair_anchor")) in the adjacent process; ratio = median of the $rounds paired ratios"
+  awk -v a="$avx1_sah" -v b="$avx_sah" 'BEGIN { exit (a - b < 0.01 && b - a < 0.01) ? 0 : 1 }' \
+    || echo "warning: the paired anchor's SAH $avx1_sah differs from the threaded anchor's $avx_sah" >&2
+  if [[ -n "$serve" ]]; then
+    echo "each build paired with one of $ref ($(basename "$serve")) in the same process pair, the order alternating; ratio = median over the $rounds rounds of each round's median of $runs paired ratios; faster = pairs with a ratio below 1"
+  else
+    echo "each variant's process paired with $ref ($(basename "$pair_anchor")) in the adjacent process; ratio = median of the $rounds paired ratios; faster = runs of the faster rounds"
+  fi
   printf '%-28s %8s %8s %8s %8s %9s %10s %8s %s\n' "variant (1 thread)" ms anchor ratio faster sah_cost "vs thread" sah_vs "verdict (vs $ref)"
   for name in "${names[@]}"; do
     t=$(tr ' ' '\n' <<<"${ms[$name]}" | grep . | med)
     ta=$(tr ' ' '\n' <<<"${ams[$name]}" | grep . | med)
     rr=$(tr ' ' '\n' <<<"${ratio[$name]}" | grep . | med)
-    faster=$(tr ' ' '\n' <<<"${ratio[$name]}" | grep . | awk '$1 < 1 { f++ } END { printf "%d/%d", f, NR }')
+    faster="${fast[$name]}/$(( rounds * runs ))"
     ratio_mt=$(awk -v a="$t" -v b="$t_avx" 'BEGIN { printf "%.2f", a / b }')
     rel=$(awk -v a="${sah[$name]}" -v b="$avx_sah" 'BEGIN { printf "%+.1f%%", (a / b - 1) * 100 }')
     ok=$(awk -v r="$rr" -v a="${sah[$name]}" -v b="$avx_sah" 'BEGIN { print (r <= 1.0 && a <= b * 1.01) ? "PASS" : "MISS" }')
     printf '%-28s %8s %8s %7sx %8s %9s %9sx %8s %s\n' "$name" "$t" "$ta" "$rr" "$faster" "${sah[$name]}" "$ratio_mt" "$rel" "$ok"
     echo "  paired ratios: ${ratio[$name]# }"
   done
-  unset ms sah ratio ams
+  unset ms sah ratio ams fast
 done
 echo
 echo "load after: $(uptime)"

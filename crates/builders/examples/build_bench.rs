@@ -18,6 +18,14 @@
 //! `bvh_fnv`, a hash of its canonical bytes (equal hashes = identical trees, e.g. the parallel
 //! binned SAH vs the sequential one). A builder that panics (not implemented yet) gets an `error`
 //! line and the others still run.
+//!
+//! `BUILD_BENCH_PAIR=PROGRAM` pairs every run with one build of another library in the same moments:
+//! PROGRAM is started once with SCENE as its argument, answers `ready N` after loading it, and then
+//! for each line it reads builds once and answers `MS SAH` (`scripts/anchors/tinybvh_buildavx_serve.cpp`,
+//! tinybvh's BuildAVX; `scripts/bench-binned.sh` builds and passes it). Own build and partner build
+//! alternate which goes first, and each line gains `anchor_ms_median`, `anchor_sah`, the median of the
+//! per-run ratios `paired_ratio_median` and `paired_faster` (runs with a ratio below 1): this machine's
+//! speed drifts by 20-40 % within minutes, and pairs milliseconds apart see the same phase.
 use bvhlab_builders::aac::AacConfig;
 use bvhlab_builders::binned_sah::{BinnedOptions, CentroidTermination};
 use bvhlab_builders::bonsai::{self, BonsaiConfig};
@@ -28,8 +36,51 @@ use bvhlab_builders::{
 use bvhlab_bvh::{metrics, validate, Aabb, Bvh, CostParams, Vec3};
 use bvhlab_geom::stats::{median, min_max};
 use bvhlab_morton::{AutoFor, Bits, EncodeConfig, Encoding};
+use std::io::{BufRead, BufReader, Write};
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::process::{Child, ChildStdout, Command, Stdio};
 use std::time::Instant;
+
+/// The partner of `BUILD_BENCH_PAIR` (see the module doc): one build per request.
+struct Partner {
+    child: Child,
+    out: BufReader<ChildStdout>,
+}
+
+impl Partner {
+    fn start(program: &str, scene: &str) -> Partner {
+        let mut child = Command::new(program)
+            .arg(scene)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap_or_else(|e| fail(&format!("cannot start {program}: {e}")));
+        let mut out = BufReader::new(child.stdout.take().expect("piped stdout"));
+        let mut line = String::new();
+        out.read_line(&mut line).ok();
+        if !line.starts_with("ready") {
+            fail(&format!("{program} did not load {scene} (said {line:?})"));
+        }
+        Partner { child, out }
+    }
+    /// One build: its milliseconds and SAH cost.
+    fn build(&mut self) -> (f64, f64) {
+        let stdin = self.child.stdin.as_mut().expect("piped stdin");
+        writeln!(stdin, "build").and_then(|_| stdin.flush()).unwrap_or_else(|e| fail(&format!("partner: {e}")));
+        let mut line = String::new();
+        self.out.read_line(&mut line).ok();
+        let v: Vec<f64> = line.split_whitespace().filter_map(|t| t.parse().ok()).collect();
+        match v[..] {
+            [ms, sah] => (ms, sah),
+            _ => fail(&format!("partner answered {line:?}")),
+        }
+    }
+}
+
+fn fail(msg: &str) -> ! {
+    eprintln!("error: {msg}");
+    std::process::exit(1);
+}
 
 pub(crate) const ALL: [&str; 14] = [
     "spatial-median",
@@ -251,6 +302,7 @@ fn main() {
     let (boxes, centers) = scene.boxes_and_centers();
     let cfg = TopDownConfig::default();
     let cost = CostParams::default();
+    let mut partner = std::env::var("BUILD_BENCH_PAIR").ok().map(|p| Partner::start(&p, spec));
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -261,12 +313,17 @@ fn main() {
             boxes.len()
         );
         let mut parts = Vec::with_capacity(runs);
+        let mut anchor = Vec::with_capacity(runs);
         let mut bvh = Bvh::default();
         let mut first_hash = None;
         let mut deterministic = true;
         let outcome = catch_unwind(AssertUnwindSafe(|| {
-            for _ in 0..runs {
+            for i in 0..runs {
+                // With a partner: its build right before (odd runs) or after (even runs) ours.
+                let mut theirs = || partner.as_mut().map(Partner::build);
+                let before = if i % 2 == 1 { theirs() } else { None };
                 let (b, p) = pool.install(|| run(name, &boxes, &centers, &cfg));
+                anchor.extend(before.or_else(theirs));
                 parts.push(p);
                 bvh = std::hint::black_box(b);
                 let h = fnv(&bvh);
@@ -289,10 +346,24 @@ fn main() {
         let enc: Vec<f64> = parts.iter().map(|p| p.encode).collect();
         let bld: Vec<f64> = parts.iter().map(|p| p.build).collect();
         let total_med = median(&total);
+        let paired = if anchor.is_empty() {
+            String::new()
+        } else {
+            let ratios: Vec<f64> = total.iter().zip(&anchor).map(|(t, a)| t / a.0).collect();
+            let a_ms: Vec<f64> = anchor.iter().map(|a| a.0).collect();
+            format!(
+                ",\"anchor_ms_median\":{:.2},\"anchor_sah\":{:.3},\"paired_ratio_median\":{:.3},\"paired_faster\":\"{}/{}\"",
+                median(&a_ms),
+                anchor[0].1,
+                median(&ratios),
+                ratios.iter().filter(|&&r| r < 1.0).count(),
+                ratios.len()
+            )
+        };
         let valid = validate(&bvh, &boxes).err().unwrap_or_else(|| "ok".into());
         let m = metrics(&bvh, cost);
         println!(
-            "{{{head},\"build_ms_median\":{total_med:.2},\"build_ms_min\":{:.2},\"encode_ms_median\":{:.2},\"build_part_ms_median\":{:.2},\"sah_cost\":{:.3},\"leaves\":{},\"refs_per_leaf\":{:.3},\"depth\":{},\"bvh_fnv\":\"{:016x}\",\"deterministic\":{deterministic},\"valid\":{valid:?}}}",
+            "{{{head},\"build_ms_median\":{total_med:.2},\"build_ms_min\":{:.2},\"encode_ms_median\":{:.2},\"build_part_ms_median\":{:.2},\"sah_cost\":{:.3},\"leaves\":{},\"refs_per_leaf\":{:.3},\"depth\":{},\"bvh_fnv\":\"{:016x}\",\"deterministic\":{deterministic},\"valid\":{valid:?}{paired}}}",
             min_max(total.iter().copied()).0,
             median(&enc),
             median(&bld),
