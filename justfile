@@ -59,7 +59,9 @@ kilian:
 
 # Trace throughput, 1 thread, 10^6 random rays of the anchors' kind: bvhlab bvh2, bvh4, bvh8 (and bvh8 on
 # 2 threads) beside Embree rtcIntersect1 and tinybvh BVH8_CPU run in the same invocation, once per round after
-# bvhlab's runs, so both sides are medians of RUNS interleaved runs; ratios of medians (issue 19). Scenes: stanford_dragon, conference, breakfast_room, stanford_bunny when present.
+# bvhlab's runs, so both sides are medians of RUNS interleaved runs; ratios of medians (issue 19). Where tiny_bvh.h and
+# g++ are found, tinybvh's BVH8_CPU also traces bvhlab's own rays right before or after bvh8 in every round (T-same,
+# bvh8/Ts: the median of the paired ratios). Scenes: stanford_dragon, conference, breakfast_room, stanford_bunny when present.
 bench-trace RUNS="3" *SCENES="":
     #!/usr/bin/env bash
     set -euo pipefail
@@ -73,7 +75,9 @@ bench-trace RUNS="3" *SCENES="":
     echo "# uptime: $(uptime)"
     # AXES=all: the binary tree of tinybvh's BVH8_CPU (8 bins on all axes) instead of the thesis' binned SAH.
     # BINS=N: N bins (default 16, or 8 with AXES=all); BINS=32 is the build that passes issue 19's build target.
-    cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --tools ../shared/tools --axes "${AXES:-largest}" ${BINS:+--bins "$BINS"} $scenes
+    # tinybvh's BVH8_CPU served over bvhlab's own rays (scripts/anchors/build.sh), paired with bvh8 per round: bvh8/Ts.
+    repo=$PWD; source scripts/anchors/build.sh
+    cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --tools ../shared/tools --axes "${AXES:-largest}" ${BINS:+--bins "$BINS"} ${serve_trace:+--tinybvh-serve "$serve_trace"} $scenes
 
 # issue 19.4: binned SAH (thesis and all-axes configurations) against tinybvh's BuildAVX, alternated: 1 thread against
 # the anchor built single-threaded (where tiny_bvh.h is found), 2 threads against the shared (threaded) anchor.

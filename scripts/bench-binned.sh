@@ -38,46 +38,9 @@ scenes=("$@")
 # NO_BUILD=1 uses the build_bench binary as it is (e.g. while another cargo command holds the target dir).
 [[ -n "${NO_BUILD:-}" ]] || cargo build --quiet --release -p bvhlab-builders --example build_bench --manifest-path "$repo/Cargo.toml"
 
-# The single-thread anchor (see above), if it can be built here.
-anchor1=""
-find_header() { { ls "${CARGO_HOME:-$HOME/.cargo}"/registry/src/*/tinybvh-rs-*/ffi/tinybvh/tiny_bvh.h 2>/dev/null || true; } | head -1; }
-header=${TINYBVH_H:-$(find_header)}
-if [[ -z "$header" ]]; then
-  # A fresh machine: put the tinybvh-rs crate (its tiny_bvh.h 1.6.8) into the cargo registry
-  # through a throwaway manifest (crates.io is reachable where the build's own crates are).
-  tmp=$(mktemp -d)
-  mkdir -p "$tmp/src" && echo 'fn main() {}' >"$tmp/src/main.rs"
-  printf '[package]\nname = "fetch-tinybvh"\nversion = "0.0.0"\nedition = "2021"\n[dependencies]\ntinybvh-rs = "=0.1.0-beta.3"\n' >"$tmp/Cargo.toml"
-  (cd "$tmp" && cargo fetch --quiet) >/dev/null 2>&1 || echo "note: could not fetch tinybvh-rs for tiny_bvh.h" >&2
-  rm -rf "$tmp"
-  header=$(find_header)
-fi
-if [[ -n "$header" && -f "$header" && -f "$shared/tools/tinybvh_anchor.cpp" ]] && command -v g++ >/dev/null; then
-  dir="$CARGO_TARGET_DIR/anchors"
-  anchor1="$dir/tinybvh-anchor-1t"
-  # Rebuilt when the anchor source or the header is newer, or the header is another file.
-  if [[ ! -x "$anchor1" || "$shared/tools/tinybvh_anchor.cpp" -nt "$anchor1" || "$header" -nt "$anchor1" ]] \
-     || ! cmp -s "$header" "$dir/tiny_bvh.h"; then
-    if ! { mkdir -p "$dir" && cp "$header" "$dir/tiny_bvh.h" && cp "$shared/tools/tinybvh_anchor.cpp" "$dir/" \
-         && g++ -O3 -march=x86-64-v3 -std=c++17 -DNO_THREADED_BUILDS "$dir/tinybvh_anchor.cpp" -o "$anchor1" -lpthread; }; then
-      echo "note: could not build the single-thread anchor: only the threaded one" >&2
-      anchor1=""
-    fi
-    rm -f "$dir/tinybvh-buildavx-serve"
-  fi
-  # BuildAVX served one build at a time (scripts/anchors/tinybvh_buildavx_serve.cpp, which includes the
-  # anchor's source): build_bench alternates its own builds with this one's (BUILD_BENCH_PAIR).
-  serve="$dir/tinybvh-buildavx-serve"
-  if [[ -n "$anchor1" && ( ! -x "$serve" || "$repo/scripts/anchors/tinybvh_buildavx_serve.cpp" -nt "$serve" ) ]]; then
-    if ! { cp "$repo/scripts/anchors/tinybvh_buildavx_serve.cpp" "$dir/" \
-         && g++ -O3 -march=x86-64-v3 -std=c++17 -DNO_THREADED_BUILDS -I "$dir" "$dir/tinybvh_buildavx_serve.cpp" -o "$serve" -lpthread; }; then
-      echo "note: could not build the served BuildAVX: no paired single-thread verdict" >&2
-      serve=""
-    fi
-  fi
-else
-  echo "note: tiny_bvh.h, g++ or the anchor source not found: only the threaded anchor (set TINYBVH_H=path/to/tiny_bvh.h)" >&2
-fi
+# The single-thread anchor and the served BuildAVX (see above), if they can be built here.
+source "$repo/scripts/anchors/build.sh"
+serve=$serve_build
 
 field() { sed -n "s/.*\"$2\":\([-0-9.eE+]*\).*/\1/p" <<<"$1"; }
 part() { sed -n "s/.*\"$2\":{\([^}]*\)}.*/\1/p" <<<"$1"; }

@@ -41,32 +41,122 @@ type Job<'a> = (usize, Box<dyn Fn() -> Vec<Hit> + Sync + 'a>);
 /// wall time, and (1 thread) by the worker thread's own CPU time, which a loaded machine inflates
 /// less (the wall time is what compares with the anchors, which report wall time). `after_round`
 /// runs at the end of every round (the anchors: alternated with bvhlab's jobs the same way).
-fn mrays(rays: usize, runs: usize, jobs: &[Job], mut after_round: impl FnMut()) -> Vec<(f64, Option<f64>)> {
+/// `partner`: a pass of another library timed by itself (seconds), run right after job `pair_with` in
+/// even rounds and right before it in odd ones; its seconds per round come back with the per-round
+/// seconds of that job, for paired ratios.
+struct Paired<'a> {
+    pair_with: usize,
+    pass: Box<dyn FnMut() -> Option<f64> + 'a>,
+}
+
+/// Per round: the partner's seconds and the paired job's.
+type PairedRuns = Vec<(f64, f64)>;
+
+fn mrays(
+    rays: usize,
+    runs: usize,
+    jobs: &[Job],
+    mut partner: Option<Paired>,
+    mut after_round: impl FnMut(),
+) -> (Vec<(f64, Option<f64>)>, PairedRuns) {
     let pools: Vec<rayon::ThreadPool> = jobs.iter().map(|(n, _)| pool(*n)).collect();
     let mut t = vec![Vec::new(); jobs.len()];
     let mut c = vec![Vec::new(); jobs.len()];
-    for _ in 0..runs {
+    let mut paired = Vec::new();
+    for round in 0..runs {
         for (j, (_, f)) in jobs.iter().enumerate() {
+            let mut theirs = None;
+            if let Some(p) = partner.as_mut().filter(|p| p.pair_with == j && round % 2 == 1) {
+                theirs = (p.pass)();
+            }
             let s = std::time::Instant::now();
             let cpu = pools[j].install(|| {
                 let c0 = thread_cpu_ns();
                 std::hint::black_box(f());
                 Some(thread_cpu_ns()? - c0?)
             });
-            t[j].push(s.elapsed().as_secs_f64());
+            let ours = s.elapsed().as_secs_f64();
+            t[j].push(ours);
             if let Some(ns) = cpu {
                 c[j].push(ns as f64 * 1e-9);
             }
+            if let Some(p) = partner.as_mut().filter(|p| p.pair_with == j && round % 2 == 0) {
+                theirs = (p.pass)();
+            }
+            paired.extend(theirs.map(|th| (th, ours)));
         }
         after_round();
     }
-    jobs.iter()
+    let m = jobs
+        .iter()
         .enumerate()
         .map(|(j, (n, _))| {
             let cpu = (*n == 1 && c[j].len() == runs).then(|| rays as f64 / median(&c[j]) / 1e6);
             (rays as f64 / median(&t[j]) / 1e6, cpu)
         })
-        .collect()
+        .collect();
+    (m, paired)
+}
+
+/// tinybvh's BVH8_CPU traversal served by `scripts/anchors/tinybvh_trace_serve.cpp` (see there): it
+/// traces bvhlab's rays, one pass per request, timed by itself.
+struct TinyServe {
+    child: std::process::Child,
+    out: std::io::BufReader<std::process::ChildStdout>,
+    /// The last pass' hit fraction.
+    hit_fraction: f64,
+}
+
+impl TinyServe {
+    fn start(program: &str, scene: &str, rays: &[Ray]) -> Result<TinyServe, String> {
+        use std::process::Stdio;
+        let mut child = Command::new(program)
+            .arg(scene)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .map_err(|e| format!("cannot start {program}: {e}"))?;
+        let out = std::io::BufReader::new(child.stdout.take().ok_or("no stdout")?);
+        let mut me = TinyServe { child, out, hit_fraction: 0.0 };
+        let ready = me.answer()?;
+        if !ready.starts_with("ready") {
+            return Err(format!("{program} did not load {scene}: {ready:?}"));
+        }
+        let path = std::env::temp_dir().join(format!("bvhlab-bench-rays-{}.bin", std::process::id()));
+        let bytes: Vec<u8> = rays
+            .iter()
+            .flat_map(|r| [r.origin.to_array(), r.dir.to_array()].concat())
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        std::fs::write(&path, bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+        let ok = me.request(&format!("rays {}", path.display()));
+        std::fs::remove_file(&path).ok();
+        let ok = ok?;
+        if ok != format!("ok {}", rays.len()) {
+            return Err(format!("{program} took the rays as {ok:?}"));
+        }
+        Ok(me)
+    }
+    fn answer(&mut self) -> Result<String, String> {
+        use std::io::BufRead;
+        let mut line = String::new();
+        self.out.read_line(&mut line).map_err(|e| e.to_string())?;
+        Ok(line.trim().to_string())
+    }
+    fn request(&mut self, req: &str) -> Result<String, String> {
+        use std::io::Write;
+        let stdin = self.child.stdin.as_mut().ok_or("no stdin")?;
+        writeln!(stdin, "{req}").and_then(|_| stdin.flush()).map_err(|e| e.to_string())?;
+        self.answer()
+    }
+    /// One pass: its seconds.
+    fn pass(&mut self) -> Option<f64> {
+        let a = self.request("trace").ok()?;
+        let v: Vec<f64> = a.split_whitespace().filter_map(|t| t.parse().ok()).collect();
+        let [secs, hits] = v[..] else { return None };
+        self.hit_fraction = hits;
+        Some(secs)
+    }
 }
 
 /// The number after `"key":` in a one-line JSON object, after `after` if given.
@@ -92,6 +182,7 @@ fn main() {
     let (mut runs, mut n_rays, mut tools) = (3usize, 1_000_000usize, "../shared/tools".to_string());
     let mut all_axes = false;
     let mut bins: Option<u32> = None;
+    let mut serve: Option<String> = None;
     let mut scenes = Vec::new();
     while let Some(a) = args.next() {
         match a.as_str() {
@@ -106,11 +197,12 @@ fn main() {
                 }
             }
             "--bins" => bins = Some(args.next().and_then(|v| v.parse().ok()).expect("--bins N")),
+            "--tinybvh-serve" => serve = Some(args.next().expect("--tinybvh-serve PROGRAM")),
             _ => scenes.push(a),
         }
     }
     if scenes.is_empty() {
-        eprintln!("usage: bench_trace [--runs N] [--rays N] [--tools DIR] [--axes largest|all] [--bins N] SCENE...");
+        eprintln!("usage: bench_trace [--runs N] [--rays N] [--tools DIR] [--axes largest|all] [--bins N] [--tinybvh-serve PROGRAM] SCENE...");
         std::process::exit(2);
     }
     let avx2 = {
@@ -132,9 +224,9 @@ fn main() {
     };
     println!("# bench-trace: {n_rays} random rays, 1 thread unless said, median of {runs} runs; tree: {tree}; AVX2: {avx2}; loadavg at start: {}", load.trim());
     println!(
-        "{:<16} {:>8} {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>8} {:>7} | {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8}",
-        "scene", "tris", "hit%", "hit%E", "hit%T", "bvh2", "bvh4", "bvh8", "bvh8x2T", "cwbvh", "embree", "E-same", "tinybvh",
-        "bvh2/E", "bvh4/E", "bvh2/Es", "bvh4/Es", "bvh8/T", "2T/1T", "cw/bvh8"
+        "{:<16} {:>8} {:>7} {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>8} {:>7} | {:>7} {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8}",
+        "scene", "tris", "hit%", "hit%E", "hit%T", "hit%Ts", "bvh2", "bvh4", "bvh8", "bvh8x2T", "cwbvh", "embree", "E-same", "tinybvh", "T-same",
+        "bvh2/E", "bvh4/E", "bvh2/Es", "bvh4/Es", "bvh8/T", "bvh8/Ts", "2T/1T", "cw/bvh8"
     );
     for spec in &scenes {
         let scene = match bvhlab_geom::load_scene(spec) {
@@ -210,7 +302,12 @@ fn main() {
         // as bvhlab's, taken in the same rounds: one invocation's figure moved by 10-15 % between
         // invocations (tinybvh on breakfast_room 11.3-12.9 Mrays/s, 2026-11-28).
         let (mut e_runs, mut t_runs) = (Vec::new(), Vec::new());
-        let m = mrays(rays.len(), runs, &jobs, || {
+        // tinybvh on these very rays, right after or before bvh8's 1-thread pass in every round.
+        let mut tiny = serve.as_deref().and_then(|p| {
+            TinyServe::start(p, spec, &rays).map_err(|e| eprintln!("{name}: tinybvh-serve: {e}")).ok()
+        });
+        let partner = tiny.as_mut().map(|t| Paired { pair_with: 2, pass: Box::new(move || t.pass()) });
+        let (m, paired) = mrays(rays.len(), runs, &jobs, partner, || {
             e_runs.extend(anchor(&format!("{tools}/embree-anchor"), &[spec, "1", "1"]));
             t_runs.extend(anchor(&format!("{tools}/tinybvh-anchor"), &[spec, "1"]));
         });
@@ -231,6 +328,12 @@ fn main() {
         let eh = med(&e_runs, "scene_commit_ms", "hit_fraction");
         let tm = med(&t_runs, "trace_bvh8_cpu", "mrays_per_s_1thread");
         let th = med(&t_runs, "trace_bvh8_cpu", "hit_fraction");
+        // Same rays: tinybvh's Mrays/s (median pass), its hit fraction, and the median over the rounds
+        // of bvh8's paired ratio (tinybvh's seconds over bvh8's in the same round).
+        let ts = (!paired.is_empty()).then(|| rays.len() as f64 / median(&paired.iter().map(|p| p.0).collect::<Vec<_>>()) / 1e6);
+        let tsh = tiny.as_ref().filter(|_| ts.is_some()).map(|t| t.hit_fraction);
+        let r8s = (!paired.is_empty()).then(|| median(&paired.iter().map(|(th, ours)| th / ours).collect::<Vec<_>>()));
+        let r8s_faster = paired.iter().filter(|(th, ours)| ours < th).count();
         let each = |runs: &[String], after: &str| {
             runs.iter().filter_map(|j| field(j, after, "mrays_per_s_1thread")).map(|v| format!("{v:.2}")).collect::<Vec<_>>()
         };
@@ -243,12 +346,13 @@ fn main() {
         let num = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
         let ratio = |a: f64, b: Option<f64>| b.map_or("-".to_string(), |b| format!("{:.2}x", a / b));
         println!(
-            "{:<16} {:>8} {:>7.2} {:>7} {:>7} | {:>7.2} {:>7.2} {:>7.2} {:>8.2} {:>7.2} | {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>7.2}x {:>7.2}x",
+            "{:<16} {:>8} {:>7.2} {:>7} {:>7} {:>7} | {:>7.2} {:>7.2} {:>7.2} {:>8.2} {:>7.2} | {:>7} {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>7.2}x {:>7.2}x",
             name,
             tris.len(),
             100.0 * hit_frac,
             pct(eh),
             pct(th),
+            pct(tsh),
             m2,
             m4,
             m8,
@@ -257,17 +361,22 @@ fn main() {
             num(em),
             num(es),
             num(tm),
+            num(ts),
             ratio(m2, em),
             ratio(m4, em),
             ratio(m2, es),
             ratio(m4, es),
             ratio(m8, tm),
+            r8s.map_or("-".to_string(), |r| format!("{r:.2}x")),
             m8x2 / m8,
             mcw / m8
         );
         let c = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
-        println!("{:<16} {:>33} | {:>7} {:>7} {:>7} {:>8} {:>7}   (by the worker's CPU time)", "", "", c(c2), c(c4), c(c8), "", c(ccw));
+        println!("{:<16} {:>41} | {:>7} {:>7} {:>7} {:>8} {:>7}   (by the worker's CPU time)", "", "", c(c2), c(c4), c(c8), "", c(ccw));
+        if r8s.is_some() {
+            eprintln!("{name}: bvh8 vs tinybvh on the same rays, paired per round: faster in {r8s_faster} of {} rounds", paired.len());
+        }
     }
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays, generation untimed; loadavg at end: {}", load.trim());
+    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays, generation untimed; T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (tinybvh's pass right before or after bvh8's); loadavg at end: {}", load.trim());
 }
