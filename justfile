@@ -60,7 +60,7 @@ kilian:
 # Trace throughput, 1 thread, 10^6 random rays of the anchors' kind: bvhlab bvh2, bvh4, bvh8 (and bvh8 on
 # 2 threads) beside Embree rtcIntersect1 and tinybvh BVH8_CPU run in the same invocation, once per round after
 # bvhlab's runs, so both sides are medians of RUNS interleaved runs; ratios of medians (issue 19). Where tiny_bvh.h and
-# g++ are found, tinybvh's BVH8_CPU also traces bvhlab's own rays right before or after bvh8 in every round (T-same,
+# g++ are found, tinybvh's BVH8_CPU also traces bvhlab's own rays in a warm pass next to a warm extra pass of bvh8 at the end of every round (T-same,
 # bvh8/Ts: the median of the paired ratios). Scenes: stanford_dragon, conference, breakfast_room, stanford_bunny when present.
 bench-trace RUNS="3" *SCENES="":
     #!/usr/bin/env bash

@@ -41,9 +41,11 @@ type Job<'a> = (usize, Box<dyn Fn() -> Vec<Hit> + Sync + 'a>);
 /// wall time, and (1 thread) by the worker thread's own CPU time, which a loaded machine inflates
 /// less (the wall time is what compares with the anchors, which report wall time). `after_round`
 /// runs at the end of every round (the anchors: alternated with bvhlab's jobs the same way).
-/// `partner`: a pass of another library timed by itself (seconds), run right after job `pair_with` in
-/// even rounds and right before it in odd ones; its seconds per round come back with the per-round
-/// seconds of that job, for paired ratios.
+/// `partner`: a pass of another library timed by itself (seconds), paired at the end of every round
+/// with an extra pass of job `pair_with`: each side runs an untimed pass and then its timed one (so
+/// both are timed warm, whichever ran before), ours first in even rounds and theirs first in odd
+/// ones; the per-round seconds of both come back for paired ratios. Separate from the job's own
+/// passes, so the partner's evictions never fall on one of the columns' timings.
 struct Paired<'a> {
     pair_with: usize,
     pass: Box<dyn FnMut() -> Option<f64> + 'a>,
@@ -65,25 +67,35 @@ fn mrays(
     let mut paired = Vec::new();
     for round in 0..runs {
         for (j, (_, f)) in jobs.iter().enumerate() {
-            let mut theirs = None;
-            if let Some(p) = partner.as_mut().filter(|p| p.pair_with == j && round % 2 == 1) {
-                theirs = (p.pass)();
-            }
             let s = std::time::Instant::now();
             let cpu = pools[j].install(|| {
                 let c0 = thread_cpu_ns();
                 std::hint::black_box(f());
                 Some(thread_cpu_ns()? - c0?)
             });
-            let ours = s.elapsed().as_secs_f64();
-            t[j].push(ours);
+            t[j].push(s.elapsed().as_secs_f64());
             if let Some(ns) = cpu {
                 c[j].push(ns as f64 * 1e-9);
             }
-            if let Some(p) = partner.as_mut().filter(|p| p.pair_with == j && round % 2 == 0) {
-                theirs = (p.pass)();
-            }
-            paired.extend(theirs.map(|th| (th, ours)));
+        }
+        if let Some(p) = partner.as_mut() {
+            let (j, f) = (p.pair_with, &jobs[p.pair_with].1);
+            let ours = || {
+                pools[j].install(|| std::hint::black_box(f()));
+                let s = std::time::Instant::now();
+                pools[j].install(|| std::hint::black_box(f()));
+                s.elapsed().as_secs_f64()
+            };
+            let mut theirs = || (p.pass)().and_then(|_| (p.pass)());
+            let pair = if round % 2 == 0 {
+                let a = ours();
+                theirs().map(|b| (b, a))
+            } else {
+                let b = theirs();
+                let a = ours();
+                b.map(|b| (b, a))
+            };
+            paired.extend(pair);
         }
         after_round();
     }
@@ -302,7 +314,7 @@ fn main() {
         // as bvhlab's, taken in the same rounds: one invocation's figure moved by 10-15 % between
         // invocations (tinybvh on breakfast_room 11.3-12.9 Mrays/s, 2026-11-28).
         let (mut e_runs, mut t_runs) = (Vec::new(), Vec::new());
-        // tinybvh on these very rays, right after or before bvh8's 1-thread pass in every round.
+        // tinybvh on these very rays, paired with a pass of bvh8 on 1 thread at the end of every round.
         let mut tiny = serve.as_deref().and_then(|p| {
             TinyServe::start(p, spec, &rays).map_err(|e| eprintln!("{name}: tinybvh-serve: {e}")).ok()
         });
@@ -378,5 +390,5 @@ fn main() {
         }
     }
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays, generation untimed; T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (tinybvh's pass right before or after bvh8's); loadavg at end: {}", load.trim());
+    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays, generation untimed; T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); loadavg at end: {}", load.trim());
 }
