@@ -19,8 +19,8 @@
 # ../shared/tools/tinybvh-anchor is not single-threaded: tinybvh builds scenes of 50k+ triangles with its
 # job system (MT_BUILD_THRESHOLD; measured: up to 60 threads and both cores busy during its builds). Where
 # tiny_bvh.h is found (TINYBVH_H, or the tinybvh-rs crate's copy in the cargo registry) and g++ is there,
-# the script also builds the same anchor source with -DNO_THREADED_BUILDS (same trees, same SAH) into the
-# target dir and times it in the same rounds: the 1-thread verdict is against that build, and bvhlab's
+# scripts/anchors/build.sh builds the anchor's source with -DNO_THREADED_BUILDS (same trees, same SAH) into
+# the target dir, and the served BuildAVX from it: the 1-thread verdict is against that build, and bvhlab's
 # parallel build on 2 threads (binned-sah-par) is put beside the threaded anchor.
 set -euo pipefail
 repo=$(cd "$(dirname "$0")/.." && pwd)
@@ -50,7 +50,6 @@ med() { sort -g | awk '{a[NR]=$1} END {if (NR == 0) print ""; else if (NR % 2) p
 # or after it (the full single-thread anchor where it was built, else the threaded one).
 pair_anchor=${anchor1:-$anchor}
 [[ -x "$pair_anchor" ]] || pair_anchor=$anchor
-serve=${serve:-}
 echo "load before: $(uptime)"
 for scene in "${scenes[@]}"; do
   declare -A ms=() sah=() ratio=() ams=() fast=()

@@ -1,5 +1,5 @@
 //! Trace throughput of bvh2, bvh4 and bvh8 beside Embree and tinybvh, in one invocation (issue 19):
-//! `cargo run --release -p bvhlab-layout --example bench_trace -- [--runs N] [--rays N] [--tools DIR] [--axes all] [--bins N] SCENE...`
+//! `cargo run --release -p bvhlab-layout --example bench_trace -- [--runs N] [--rays N] [--tools DIR] [--axes all] [--bins N] [--tinybvh-serve PROGRAM] SCENE...`
 //!
 //! Per scene: binned SAH (16 bins, leaf 2, c_T = 3, c_I = 2: `eval --build binned-sah`'s defaults;
 //! `--axes all`: 8 bins on all three axes, `binned-sah:axes=all:bins=8`, the tree tinybvh's BVH8_CPU
@@ -14,6 +14,10 @@
 //! configurations alternated within each round; 2 threads for bvh8. `embree-anchor SCENE 1 1` and
 //! `tinybvh-anchor SCENE 1` (their builds run once per invocation; their traces are one pass over
 //! 10^6 rays each) run once at the end of every round, and their medians give the ratios.
+//! `--tinybvh-serve PROGRAM` (`scripts/anchors/tinybvh_trace_serve.cpp`, built by
+//! `scripts/anchors/build.sh`) also has tinybvh's BVH8_CPU trace these very rays: at the end of every
+//! round a warm pass of it and a warm extra pass of bvh8 run side by side, the order alternating, and
+//! `bvh8/Ts` is the median of those paired ratios.
 //! Before timing, the fast hits of 10^4 rays are checked against the exact traversal
 //! (`bvhlab_trace::check_agreement`).
 use bvhlab_builders::{binned_sah, TopDownConfig};
