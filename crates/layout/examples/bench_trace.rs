@@ -18,6 +18,9 @@
 //! `scripts/anchors/build.sh`) also has tinybvh's BVH8_CPU trace these very rays: at the end of every
 //! round a warm pass of it and a warm extra pass of bvh8 run side by side, the order alternating, and
 //! `bvh8/Ts` is the median of those paired ratios.
+//! Every side traces on transparent huge pages where the kernel offers them: bvhlab's timed layouts
+//! and Embree advise their memory, and the tinybvh programs run with `glibc.malloc.hugetlb=1`
+//! (`BVHLAB_THP=0`: none of them; the stderr line says how many MiB each side got).
 //! Before timing, the fast hits of 10^4 rays are checked against the exact traversal
 //! (`bvhlab_trace::check_agreement`).
 use bvhlab_builders::{binned_sah, TopDownConfig};
@@ -126,7 +129,7 @@ struct TinyServe {
 impl TinyServe {
     fn start(program: &str, scene: &str, rays: &[Ray]) -> Result<TinyServe, String> {
         use std::process::Stdio;
-        let mut child = Command::new(program)
+        let mut child = tool_command(program)
             .arg(scene)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
@@ -165,6 +168,10 @@ impl TinyServe {
         writeln!(stdin, "{req}").and_then(|_| stdin.flush()).map_err(|e| e.to_string())?;
         self.answer()
     }
+    /// MiB of the server's memory on transparent huge pages, if readable.
+    fn huge_mib(&self) -> Option<f64> {
+        anon_huge_mib(&format!("/proc/{}/smaps_rollup", self.child.id()))
+    }
     /// One pass: its seconds.
     fn pass(&mut self) -> Option<f64> {
         let a = self.request("trace").ok()?;
@@ -173,6 +180,13 @@ impl TinyServe {
         self.hit_fraction = hits;
         Some(secs)
     }
+}
+
+/// `AnonHugePages` of a /proc/PID/smaps_rollup file, in MiB.
+fn anon_huge_mib(path: &str) -> Option<f64> {
+    let s = std::fs::read_to_string(path).ok()?;
+    let kb: f64 = s.lines().find(|l| l.starts_with("AnonHugePages:"))?.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
 }
 
 /// The number after `"key":` in a one-line JSON object, after `after` if given.
@@ -184,8 +198,21 @@ fn field(json: &str, after: &str, key: &str) -> Option<f64> {
     rest[i..i + end].parse().ok()
 }
 
+/// A tool (an anchor, or the served tinybvh) with the huge-page help bvhlab's timed layouts get
+/// (`bvhlab_trace::thp`) where it is on: glibc's malloc then advises its large allocations for huge
+/// pages (`glibc.malloc.hugetlb=1`, glibc >= 2.35, also read by the statically linked
+/// tinybvh-anchor). Embree advises its BVHs itself. Without it tinybvh alone would trace on 4 KiB
+/// pages (dragon: 2.68 -> 2.82 Mrays/s with it, one invocation each, 2026-11-29).
+fn tool_command(program: &str) -> Command {
+    let mut cmd = Command::new(program);
+    if bvhlab_trace::thp::enabled() {
+        cmd.env("GLIBC_TUNABLES", "glibc.malloc.hugetlb=1");
+    }
+    cmd
+}
+
 fn anchor(tool: &str, args: &[&str]) -> Option<String> {
-    let out = Command::new(tool).args(args).output().ok()?;
+    let out = tool_command(tool).args(args).output().ok()?;
     if !out.status.success() {
         eprintln!("{tool}: exit {:?}: {}", out.status.code(), String::from_utf8_lossy(&out.stderr));
         return None;
@@ -272,11 +299,13 @@ fn main() {
             .map(|r| Ray { tmax: f32::INFINITY, ..r })
             .collect();
         let f2 = FastBvh2::new(&bvh, tris);
-        let w4 = WideBvh::build(&bvh, 4).expect("bvh4");
-        let w8 = WideBvh::build(&bvh, 8).expect("bvh8");
+        // The timed copies (node memory advised for huge pages, as the pipeline's measure stage
+        // traces: `bvhlab_trace::thp`; `BVHLAB_THP=0` for ordinary pages).
+        let w4 = WideBvh::build(&bvh, 4).expect("bvh4").timed_copy();
+        let w8 = WideBvh::build(&bvh, 8).expect("bvh8").timed_copy();
         let s4 = w4.store(tris);
         let s8 = w8.store(tris);
-        let cw = CwBvh::build(&bvh).expect("cwbvh");
+        let cw = CwBvh::build(&bvh).expect("cwbvh").timed_copy();
         // Oracle on a sample: fast hits against the exact traversal.
         let sample = &rays[..rays.len().min(10_000)];
         let exact = bvhlab_trace::trace(&bvh, tris, sample).hits;
@@ -328,6 +357,9 @@ fn main() {
             t_runs.extend(anchor(&format!("{tools}/tinybvh-anchor"), &[spec, "1"]));
         });
         let [(m2, c2), (m4, c4), (m8, c8), (m8x2, _), (mcw, ccw)] = m[..] else { unreachable!() };
+        // How much of each side's memory the kernel backed with huge pages (bvhlab's timed layouts
+        // and, with THP on, the served tinybvh's allocations; Embree's scene lives only inside `Es`).
+        let huge = (anon_huge_mib("/proc/self/smaps_rollup"), tiny.as_ref().and_then(|t| t.huge_mib()));
         // Embree's rtcIntersect1 on these very rays, one thread, its scene (MEDIUM) committed
         // untimed: the anchor's own figure also times its ray generation (mt19937, sin, cos, sqrt).
         let peer = bvhlab_peers::Peer::EmbreeBinned;
@@ -353,10 +385,14 @@ fn main() {
         let each = |runs: &[String], after: &str| {
             runs.iter().filter_map(|j| field(j, after, "mrays_per_s_1thread")).map(|v| format!("{v:.2}")).collect::<Vec<_>>()
         };
+        let mib = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0}"));
         eprintln!(
-            "{name}: anchor runs, Mrays/s: embree {:?}, tinybvh {:?}",
+            "{name}: anchor runs, Mrays/s: embree {:?}, tinybvh {:?}; MiB on huge pages: bvhlab {}, tinybvh-serve {} (BVHLAB_THP={})",
             each(&e_runs, "scene_commit_ms"),
-            each(&t_runs, "trace_bvh8_cpu")
+            each(&t_runs, "trace_bvh8_cpu"),
+            mib(huge.0),
+            mib(huge.1),
+            if bvhlab_trace::thp::enabled() { "on" } else { "0" }
         );
         let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.2}", 100.0 * v));
         let num = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
@@ -394,5 +430,5 @@ fn main() {
         }
     }
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays, generation untimed; T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); loadavg at end: {}", load.trim());
+    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays, generation untimed; T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); every side on transparent huge pages unless BVHLAB_THP=0 (bvhlab's timed layouts and Embree advise their memory, the tinybvh programs get glibc.malloc.hugetlb=1); loadavg at end: {}", load.trim());
 }

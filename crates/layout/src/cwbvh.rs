@@ -261,6 +261,18 @@ impl CwBvh {
         PackStore::new(&self.prim_indices, tris, &self.leaves)
     }
 
+    /// A copy for the timed path: the nodes in memory advised for huge pages (as
+    /// [`WideBvh::timed_copy`]); the same layout otherwise.
+    pub fn timed_copy(&self) -> CwBvh {
+        CwBvh {
+            nodes: bvhlab_trace::thp::copy(&self.nodes),
+            leaves: self.leaves.clone(),
+            prim_indices: self.prim_indices.clone(),
+            root_bounds: self.root_bounds,
+            collapse: self.collapse,
+        }
+    }
+
     pub fn memory(&self) -> Memory {
         let topology = (self.nodes.len() * std::mem::size_of::<CwNode>() + self.leaves.len() * 8) as u64;
         Memory {

@@ -281,8 +281,8 @@ impl Layout {
     pub fn timed<'a>(&'a self, tris: &[Triangle]) -> Timed<'a> {
         match self {
             Layout::Bvh2(l) => Timed::Bvh2(bvhlab_trace::FastBvh2::new(&l.bvh, tris)),
-            Layout::Wide(w) => Timed::Wide(w, w.store(tris)),
-            Layout::Cw(c) => Timed::Cw(c, c.store(tris)),
+            Layout::Wide(w) => Timed::Wide(w.timed_copy(), w.store(tris)),
+            Layout::Cw(c) => Timed::Cw(c.timed_copy(), c.store(tris)),
             other => Timed::Exact(other),
         }
     }
@@ -338,8 +338,9 @@ impl Layout {
 /// A layout ready for the timed path ([`Layout::timed`]).
 pub enum Timed<'a> {
     Bvh2(bvhlab_trace::FastBvh2<'a>),
-    Wide(&'a wide::WideBvh, bvhlab_trace::PackStore),
-    Cw(&'a cwbvh::CwBvh, bvhlab_trace::PackStore),
+    /// The node rows copied to memory advised for huge pages ([`wide::WideBvh::timed_copy`]).
+    Wide(wide::WideBvh, bvhlab_trace::PackStore),
+    Cw(cwbvh::CwBvh, bvhlab_trace::PackStore),
     Exact(&'a Layout),
 }
 

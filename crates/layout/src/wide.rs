@@ -309,6 +309,18 @@ impl WideBvh {
         PackStore::new(&self.prim_indices, tris, &self.leaves)
     }
 
+    /// A copy for the timed path: the node rows in memory advised for huge pages
+    /// ([`bvhlab_trace::thp`], as Embree's BVHs are); the same layout otherwise.
+    pub fn timed_copy(&self) -> WideBvh {
+        WideBvh {
+            width: self.width,
+            data: bvhlab_trace::thp::copy(&self.data),
+            leaves: self.leaves.clone(),
+            prim_indices: self.prim_indices.clone(),
+            root_bounds: self.root_bounds,
+        }
+    }
+
     fn stride(&self) -> usize {
         7 * self.width as usize
     }

@@ -7,6 +7,7 @@ pub mod heatmap;
 pub mod packs;
 pub mod pairs;
 pub mod rays;
+pub mod thp;
 pub mod traverse;
 
 pub use fast::{agrees, check_agreement, FastBvh2, TriStore, WTri};

@@ -61,7 +61,7 @@ impl PackStore {
     /// pack has its first lane marked last, so a traversal tests one lane and stops).
     pub fn new(prim_indices: &[u32], tris: &[Triangle], leaves: &[[u32; 3]]) -> PackStore {
         let total = leaves.iter().map(|l| l[2] as usize + packs_for(l[1]) as usize).max().unwrap_or(0);
-        let mut packs = vec![Tri4::UNUSED; total];
+        let mut packs = crate::thp::filled(Tri4::UNUSED, total);
         for &[first, count, pack] in leaves {
             let ids = prim_indices.get(first as usize..first as usize + count as usize).unwrap_or_default();
             let base = pack as usize;

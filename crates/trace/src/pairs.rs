@@ -118,7 +118,7 @@ impl Arena {
         let units = (np + tri_lines).checked_mul(4)?;
         u32::try_from(units).ok()?;
         let tri0 = 4 * np;
-        let mut lines = Vec::with_capacity(np + tri_lines);
+        let mut lines = crate::thp::with_capacity(np + tri_lines);
         for pair in &p.pairs {
             let mut q = *pair;
             for side in 0..2 {
