@@ -61,7 +61,9 @@ kilian:
 # 2 threads) beside Embree rtcIntersect1 and tinybvh BVH8_CPU run in the same invocation, once per round after
 # bvhlab's runs, so both sides are medians of RUNS interleaved runs; ratios of medians (issue 19). Where tiny_bvh.h and
 # g++ are found, tinybvh's BVH8_CPU also traces bvhlab's own rays in a warm pass next to a warm extra pass of bvh8 at the end of every round (T-same,
-# bvh8/Ts: the median of the paired ratios). Scenes: stanford_dragon, conference, breakfast_room, stanford_bunny when present.
+# bvh8/Ts: the median of the paired ratios). Every side on transparent huge pages (bvhlab's timed layouts and Embree
+# advise their memory; tinybvh runs with glibc.malloc.hugetlb=1); BVHLAB_THP=0: none of them.
+# Scenes: stanford_dragon, conference, breakfast_room, stanford_bunny when present.
 bench-trace RUNS="3" *SCENES="":
     #!/usr/bin/env bash
     set -euo pipefail
