@@ -4,7 +4,8 @@
 //! Per scene: binned SAH (16 bins, leaf 2, c_T = 3, c_I = 2: `eval --build binned-sah`'s defaults;
 //! `--axes all`: 8 bins on all three axes, `binned-sah:axes=all:bins=8`, the tree tinybvh's BVH8_CPU
 //! is built from: its BuildAVX; `--bins N`: N bins instead, e.g. 32: the configuration whose build
-//! passes issue 19's build target on the dragon, `just bench-binned`),
+//! passes issue 19's build target on the dragon, `just bench-binned`; `just bench-trace` passes
+//! `--axes all` unless `AXES` says otherwise, so its ratios compare traversals over trees built alike),
 //! then bvhlab's timed paths (watertight f32 test, no counters) on 10^6 random rays of the anchors'
 //! kind: pairs of uniform points on the sphere around the scene box (radius half its diagonal, as
 //! `../shared/tools/*_anchor.cpp`), the ray starting at the first point towards the second with an
