@@ -18,7 +18,10 @@
 //! `--tinybvh-serve PROGRAM` (`scripts/anchors/tinybvh_trace_serve.cpp`, built by
 //! `scripts/anchors/build.sh`) also has tinybvh's BVH8_CPU trace these very rays: at the end of every
 //! round a warm pass of it and a warm extra pass of bvh8 run side by side, the order alternating, and
-//! `bvh8/Ts` is the median of those paired ratios.
+//! `bvh8/Ts` is the median of those paired ratios. Embree's `rtcIntersect1` (through
+//! `bvhlab_peers`, its scene of the anchor's build quality committed once) traces them the same way
+//! (`E-same`, `bvh8/Es`; Embree picks an 8-wide tree with an AVX-512 intersector here, so bvh8 is
+//! its like; `bvh2/Es`, `bvh4/Es` are ratios of medians).
 //! Every side traces on transparent huge pages where the kernel offers them: bvhlab's timed layouts
 //! and Embree advise their memory, and the tinybvh programs run with `glibc.malloc.hugetlb=1`
 //! (`BVHLAB_THP=0`: none of them; the stderr line says how many MiB each side got).
@@ -49,7 +52,7 @@ type Job<'a> = (usize, Box<dyn Fn() -> Vec<Hit> + Sync + 'a>);
 /// wall time, and (1 thread) by the worker thread's own CPU time, which a loaded machine inflates
 /// less (the wall time is what compares with the anchors, which report wall time). `after_round`
 /// runs at the end of every round (the anchors: alternated with bvhlab's jobs the same way).
-/// `partner`: a pass of another library timed by itself (seconds), paired at the end of every round
+/// `partners`: passes of other libraries timed by themselves (seconds), each paired at the end of every round
 /// with an extra pass of job `pair_with`: each side runs an untimed pass and then its timed one (so
 /// both are timed warm, whichever ran before), ours first in even rounds and theirs first in odd
 /// ones; the per-round seconds of both come back for paired ratios. Separate from the job's own
@@ -66,13 +69,13 @@ fn mrays(
     rays: usize,
     runs: usize,
     jobs: &[Job],
-    mut partner: Option<Paired>,
+    mut partners: Vec<Paired>,
     mut after_round: impl FnMut(),
-) -> (Vec<(f64, Option<f64>)>, PairedRuns) {
+) -> (Vec<(f64, Option<f64>)>, Vec<PairedRuns>) {
     let pools: Vec<rayon::ThreadPool> = jobs.iter().map(|(n, _)| pool(*n)).collect();
     let mut t = vec![Vec::new(); jobs.len()];
     let mut c = vec![Vec::new(); jobs.len()];
-    let mut paired = Vec::new();
+    let mut paired = vec![Vec::new(); partners.len()];
     for round in 0..runs {
         for (j, (_, f)) in jobs.iter().enumerate() {
             let s = std::time::Instant::now();
@@ -86,7 +89,7 @@ fn mrays(
                 c[j].push(ns as f64 * 1e-9);
             }
         }
-        if let Some(p) = partner.as_mut() {
+        for (p, paired) in partners.iter_mut().zip(paired.iter_mut()) {
             let (j, f) = (p.pair_with, &jobs[p.pair_with].1);
             let ours = || {
                 pools[j].install(|| std::hint::black_box(f()));
@@ -268,9 +271,9 @@ fn main() {
     };
     println!("# bench-trace: {n_rays} random rays, 1 thread unless said, median of {runs} runs; tree: {tree}; AVX2: {avx2}; loadavg at start: {}", load.trim());
     println!(
-        "{:<16} {:>8} {:>7} {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>8} {:>7} | {:>7} {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8}",
+        "{:<16} {:>8} {:>7} {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>8} {:>7} | {:>7} {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8}",
         "scene", "tris", "hit%", "hit%E", "hit%T", "hit%Ts", "bvh2", "bvh4", "bvh8", "bvh8x2T", "cwbvh", "embree", "E-same", "tinybvh", "T-same",
-        "bvh2/E", "bvh4/E", "bvh2/Es", "bvh4/Es", "bvh8/T", "bvh8/Ts", "2T/1T", "cw/bvh8"
+        "bvh2/E", "bvh4/E", "bvh2/Es", "bvh4/Es", "bvh8/Es", "bvh8/T", "bvh8/Ts", "2T/1T", "cw/bvh8"
     );
     for spec in &scenes {
         let scene = match bvhlab_geom::load_scene(spec) {
@@ -352,22 +355,48 @@ fn main() {
         let mut tiny = serve.as_deref().and_then(|p| {
             TinyServe::start(p, spec, &rays).map_err(|e| eprintln!("{name}: tinybvh-serve: {e}")).ok()
         });
-        let partner = tiny.as_mut().map(|t| Paired { pair_with: 2, pass: Box::new(move || t.pass()) });
-        let (m, paired) = mrays(rays.len(), runs, &jobs, partner, || {
+        // How much of bvhlab's memory the kernel backed with huge pages (its timed layouts; before
+        // Embree's scene joins this process).
+        let huge_ours = anon_huge_mib("/proc/self/smaps_rollup");
+        // Embree's rtcIntersect1 on these very rays, one thread, its scene (MEDIUM, what the
+        // anchor commits) committed once, untimed: the anchor's own figure also times its ray
+        // generation (mt19937, sin, cos, sqrt). Paired like tinybvh, with bvh8 (Embree picks an
+        // 8-wide tree here, docs/decisions.md).
+        let embree = bvhlab_peers::Peer::EmbreeBinned.embree_scene(tris).map_err(|e| eprintln!("{name}: Embree: {e}")).ok();
+        let embree_hits = std::cell::Cell::new(0usize);
+        let mut partners = Vec::new();
+        let tiny_at = tiny.as_mut().map(|t| {
+            partners.push(Paired { pair_with: 2, pass: Box::new(move || t.pass()) });
+            partners.len() - 1
+        });
+        let embree_at = embree.as_ref().map(|e| {
+            let (rays, hits) = (&rays, &embree_hits);
+            partners.push(Paired {
+                pair_with: 2,
+                pass: Box::new(move || {
+                    let (h, secs) = e.trace(rays).ok()?;
+                    hits.set(h.iter().filter(|h| h.is_hit()).count());
+                    Some(secs)
+                }),
+            });
+            partners.len() - 1
+        });
+        let (m, paired) = mrays(rays.len(), runs, &jobs, partners, || {
             e_runs.extend(anchor(&format!("{tools}/embree-anchor"), &[spec, "1", "1"]));
             t_runs.extend(anchor(&format!("{tools}/tinybvh-anchor"), &[spec, "1"]));
         });
         let [(m2, c2), (m4, c4), (m8, c8), (m8x2, _), (mcw, ccw)] = m[..] else { unreachable!() };
-        // How much of each side's memory the kernel backed with huge pages (bvhlab's timed layouts
-        // and, with THP on, the served tinybvh's allocations; Embree's scene lives only inside `Es`).
-        let huge = (anon_huge_mib("/proc/self/smaps_rollup"), tiny.as_ref().and_then(|t| t.huge_mib()));
-        // Embree's rtcIntersect1 on these very rays, one thread, its scene (MEDIUM) committed
-        // untimed: the anchor's own figure also times its ray generation (mt19937, sin, cos, sqrt).
-        let peer = bvhlab_peers::Peer::EmbreeBinned;
-        let es: Option<f64> = peer.available().ok().and_then(|_| {
-            let secs: Vec<f64> = (0..runs).filter_map(|_| peer.trace(&bvh, tris, &rays).ok().map(|t| t.seconds)).collect();
-            (!secs.is_empty()).then(|| rays.len() as f64 / median(&secs) / 1e6)
-        });
+        let huge = (huge_ours, tiny.as_ref().and_then(|t| t.huge_mib()));
+        let none = Vec::new();
+        let (tiny_pairs, embree_pairs) = (tiny_at.map_or(&none, |i| &paired[i]), embree_at.map_or(&none, |i| &paired[i]));
+        // A partner's Mrays/s (its median pass), bvh8's paired ratio against it (median over the
+        // rounds of the partner's seconds over bvh8's) and in how many rounds bvh8 was faster.
+        let paired_stats = |p: &PairedRuns| {
+            let mr = (!p.is_empty()).then(|| rays.len() as f64 / median(&p.iter().map(|p| p.0).collect::<Vec<_>>()) / 1e6);
+            let r = (!p.is_empty()).then(|| median(&p.iter().map(|(th, ours)| th / ours).collect::<Vec<_>>()));
+            (mr, r, p.iter().filter(|(th, ours)| ours < th).count())
+        };
+        let (es, r8e, r8e_faster) = paired_stats(embree_pairs);
         // Median of a field over the anchor's runs (None when no run gave it).
         let med = |runs: &[String], after: &str, key: &str| {
             let v: Vec<f64> = runs.iter().filter_map(|j| field(j, after, key)).collect();
@@ -379,18 +408,17 @@ fn main() {
         let th = med(&t_runs, "trace_bvh8_cpu", "hit_fraction");
         // Same rays: tinybvh's Mrays/s (median pass), its hit fraction, and the median over the rounds
         // of bvh8's paired ratio (tinybvh's seconds over bvh8's in the same round).
-        let ts = (!paired.is_empty()).then(|| rays.len() as f64 / median(&paired.iter().map(|p| p.0).collect::<Vec<_>>()) / 1e6);
+        let (ts, r8s, r8s_faster) = paired_stats(tiny_pairs);
         let tsh = tiny.as_ref().filter(|_| ts.is_some()).map(|t| t.hit_fraction);
-        let r8s = (!paired.is_empty()).then(|| median(&paired.iter().map(|(th, ours)| th / ours).collect::<Vec<_>>()));
-        let r8s_faster = paired.iter().filter(|(th, ours)| ours < th).count();
         let each = |runs: &[String], after: &str| {
             runs.iter().filter_map(|j| field(j, after, "mrays_per_s_1thread")).map(|v| format!("{v:.2}")).collect::<Vec<_>>()
         };
         let mib = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0}"));
         eprintln!(
-            "{name}: anchor runs, Mrays/s: embree {:?}, tinybvh {:?}; MiB on huge pages: bvhlab {}, tinybvh-serve {} (BVHLAB_THP={})",
+            "{name}: anchor runs, Mrays/s: embree {:?}, tinybvh {:?}; Embree on the same rays: hit% {}; MiB on huge pages: bvhlab {}, tinybvh-serve {} (BVHLAB_THP={})",
             each(&e_runs, "scene_commit_ms"),
             each(&t_runs, "trace_bvh8_cpu"),
+            if es.is_some() { format!("{:.2}", 100.0 * embree_hits.get() as f64 / rays.len() as f64) } else { "-".into() },
             mib(huge.0),
             mib(huge.1),
             if bvhlab_trace::thp::enabled() { "on" } else { "0" }
@@ -399,7 +427,7 @@ fn main() {
         let num = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
         let ratio = |a: f64, b: Option<f64>| b.map_or("-".to_string(), |b| format!("{:.2}x", a / b));
         println!(
-            "{:<16} {:>8} {:>7.2} {:>7} {:>7} {:>7} | {:>7.2} {:>7.2} {:>7.2} {:>8.2} {:>7.2} | {:>7} {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>7.2}x {:>7.2}x",
+            "{:<16} {:>8} {:>7.2} {:>7} {:>7} {:>7} | {:>7.2} {:>7.2} {:>7.2} {:>8.2} {:>7.2} | {:>7} {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>7.2}x {:>7.2}x",
             name,
             tris.len(),
             100.0 * hit_frac,
@@ -419,6 +447,7 @@ fn main() {
             ratio(m4, em),
             ratio(m2, es),
             ratio(m4, es),
+            r8e.map_or("-".to_string(), |r| format!("{r:.2}x")),
             ratio(m8, tm),
             r8s.map_or("-".to_string(), |r| format!("{r:.2}x")),
             m8x2 / m8,
@@ -427,9 +456,12 @@ fn main() {
         let c = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
         println!("{:<16} {:>41} | {:>7} {:>7} {:>7} {:>8} {:>7}   (by the worker's CPU time)", "", "", c(c2), c(c4), c(c8), "", c(ccw));
         if r8s.is_some() {
-            eprintln!("{name}: bvh8 vs tinybvh on the same rays, paired per round: faster in {r8s_faster} of {} rounds", paired.len());
+            eprintln!("{name}: bvh8 vs tinybvh on the same rays, paired per round: faster in {r8s_faster} of {} rounds", tiny_pairs.len());
+        }
+        if r8e.is_some() {
+            eprintln!("{name}: bvh8 vs Embree on the same rays, paired per round: faster in {r8e_faster} of {} rounds", embree_pairs.len());
         }
     }
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays, generation untimed; T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); every side on transparent huge pages unless BVHLAB_THP=0 (bvhlab's timed layouts and Embree advise their memory, the tinybvh programs get glibc.malloc.hugetlb=1); loadavg at end: {}", load.trim());
+    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays (its scene committed once, generation untimed; median of one pass per round, each paired with a pass of bvh8 as Ts: bvh8/Es); T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); every side on transparent huge pages unless BVHLAB_THP=0 (bvhlab's timed layouts and Embree advise their memory, the tinybvh programs get glibc.malloc.hugetlb=1); loadavg at end: {}", load.trim());
 }

@@ -43,6 +43,25 @@ pub struct PeerTrace {
     pub setup_seconds: f64,
 }
 
+/// A committed Embree scene for repeated passes of `rtcIntersect1` on one thread
+/// ([`Peer::embree_scene`]).
+pub struct EmbreeScene(#[cfg(has_embree)] embree::TraceScene);
+
+impl EmbreeScene {
+    /// One pass over `rays`: the hits and the pass' seconds.
+    pub fn trace(&self, rays: &[bvhlab_trace::Ray]) -> Result<(Vec<Hit>, f64), String> {
+        #[cfg(not(has_embree))]
+        {
+            let _ = rays;
+            Err(EMBREE_MISSING.into())
+        }
+        #[cfg(has_embree)]
+        {
+            self.0.trace(rays)
+        }
+    }
+}
+
 /// The boxes of the parts of `tri` on each side of the plane `x[dim] = pos` (left: below).
 /// Stich et al. 2009, 4.1: split the triangle, not its box, so both boxes are tight.
 pub fn split_triangle(tri: &Triangle, dim: usize, pos: f32) -> (Aabb, Aabb) {
@@ -188,6 +207,24 @@ impl Peer {
             _ => self.trace_embree(tris, rays),
         }));
         caught.unwrap_or_else(|_| Err(format!("{} traversal panicked", self.library())))
+    }
+
+    /// An Embree scene of this peer's build quality committed once for repeated timed passes
+    /// ([`EmbreeScene::trace`]); an error for obvhs and without Embree in the build.
+    pub fn embree_scene(self, tris: &[Triangle]) -> Result<EmbreeScene, String> {
+        self.available()?;
+        if self == Peer::Obvhs {
+            return Err("obvhs has no Embree scene".into());
+        }
+        #[cfg(not(has_embree))]
+        {
+            let _ = tris;
+            Err(EMBREE_MISSING.into())
+        }
+        #[cfg(has_embree)]
+        {
+            embree::TraceScene::new(tris, self.quality()).map(|(s, _)| EmbreeScene(s))
+        }
     }
 
     fn trace_embree(

@@ -42,6 +42,14 @@ fn peers_agree_with_the_oracle() {
             let theirs = peer.trace(&built.bvh, tris, &rays).unwrap();
             let bad = theirs.hits.iter().zip(&oracle).filter(|(p, o)| !hits_agree(o, p, 1e-4)).count();
             assert!(bad == 0, "{peer:?} traversal on {spec}: {bad} of {} rays disagree", rays.len());
+            // The scene kept for repeated passes (bench_trace) traces as the one-shot call, pass
+            // after pass.
+            if let Ok(scene) = peer.embree_scene(tris) {
+                for pass in 0..2 {
+                    let (hits, secs) = scene.trace(&rays).unwrap();
+                    assert!(hits == theirs.hits && secs > 0.0, "{peer:?} kept scene on {spec}, pass {pass}");
+                }
+            }
         }
     }
 }
