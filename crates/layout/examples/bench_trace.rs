@@ -71,7 +71,7 @@ fn mrays(
     jobs: &[Job],
     mut partners: Vec<Paired>,
     mut after_round: impl FnMut(),
-) -> (Vec<(f64, Option<f64>)>, Vec<PairedRuns>) {
+) -> (Vec<(f64, Option<f64>)>, Vec<PairedRuns>, Vec<Vec<f64>>) {
     let pools: Vec<rayon::ThreadPool> = jobs.iter().map(|(n, _)| pool(*n)).collect();
     let mut t = vec![Vec::new(); jobs.len()];
     let mut c = vec![Vec::new(); jobs.len()];
@@ -118,7 +118,7 @@ fn mrays(
             (rays as f64 / median(&t[j]) / 1e6, cpu)
         })
         .collect();
-    (m, paired)
+    (m, paired, t)
 }
 
 /// tinybvh's BVH8_CPU traversal served by `scripts/anchors/tinybvh_trace_serve.cpp` (see there): it
@@ -381,12 +381,16 @@ fn main() {
             });
             partners.len() - 1
         });
-        let (m, paired) = mrays(rays.len(), runs, &jobs, partners, || {
+        let (m, paired, secs) = mrays(rays.len(), runs, &jobs, partners, || {
             e_runs.extend(anchor(&format!("{tools}/embree-anchor"), &[spec, "1", "1"]));
             t_runs.extend(anchor(&format!("{tools}/tinybvh-anchor"), &[spec, "1"]));
         });
         let [(m2, c2), (m4, c4), (m8, c8), (m8x2, _), (mcw, ccw)] = m[..] else { unreachable!() };
         let huge = (huge_ours, tiny.as_ref().and_then(|t| t.huge_mib()));
+        // bvh8's 2-thread speed-up paired by round (its 1-thread seconds over its 2-thread seconds
+        // in the same round, median over the rounds): a slow phase of the machine within a round
+        // falls on both, where the ratio of the two medians took it on one side only.
+        let two_on_one = median(&secs[2].iter().zip(&secs[3]).map(|(one, two)| one / two).collect::<Vec<_>>());
         let none = Vec::new();
         let (tiny_pairs, embree_pairs) = (tiny_at.map_or(&none, |i| &paired[i]), embree_at.map_or(&none, |i| &paired[i]));
         // A partner's Mrays/s (its median pass), bvh8's paired ratio against it (median over the
@@ -450,7 +454,7 @@ fn main() {
             r8e.map_or("-".to_string(), |r| format!("{r:.2}x")),
             ratio(m8, tm),
             r8s.map_or("-".to_string(), |r| format!("{r:.2}x")),
-            m8x2 / m8,
+            two_on_one,
             mcw / m8
         );
         let c = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
@@ -458,10 +462,11 @@ fn main() {
         if r8s.is_some() {
             eprintln!("{name}: bvh8 vs tinybvh on the same rays, paired per round: faster in {r8s_faster} of {} rounds", tiny_pairs.len());
         }
+        eprintln!("{name}: bvh8 2 threads over 1: paired by round {two_on_one:.2}x, ratio of the medians {:.2}x", m8x2 / m8);
         if r8e.is_some() {
             eprintln!("{name}: bvh8 vs Embree on the same rays, paired per round: faster in {r8e_faster} of {} rounds", embree_pairs.len());
         }
     }
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays (its scene committed once, generation untimed; median of one pass per round, each paired with a pass of bvh8 as Ts: bvh8/Es); T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); every side on transparent huge pages unless BVHLAB_THP=0 (bvhlab's timed layouts and Embree advise their memory, the tinybvh programs get glibc.malloc.hugetlb=1); loadavg at end: {}", load.trim());
+    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays (its scene committed once, generation untimed; median of one pass per round, each paired with a pass of bvh8 as Ts: bvh8/Es); T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); every side on transparent huge pages unless BVHLAB_THP=0 (bvhlab's timed layouts and Embree advise their memory, the tinybvh programs get glibc.malloc.hugetlb=1); 2T/1T = median over the rounds of bvh8's 1-thread over its 2-thread seconds in the same round; loadavg at end: {}", load.trim());
 }
