@@ -277,13 +277,43 @@ impl Layout {
 
     /// The layout prepared for timing (triangles copied into leaf-slot order outside the timed
     /// region): bvh2, bvh4 and bvh8 trace with their fast paths (watertight f32 test, no counters);
-    /// the compressed layouts with their own exact traversals (counters included).
+    /// the compressed layouts with their own exact traversals (counters included). Every one reads
+    /// memory advised for huge pages (`bvhlab_trace::thp`): copies made here where needed.
     pub fn timed<'a>(&'a self, tris: &[Triangle]) -> Timed<'a> {
         match self {
             Layout::Bvh2(l) => Timed::Bvh2(bvhlab_trace::FastBvh2::new(&l.bvh, tris)),
             Layout::Wide(w) => Timed::Wide(w.timed_copy(), w.store(tris)),
             Layout::Cw(c) => Timed::Cw(c.timed_copy(), c.store(tris)),
-            other => Timed::Exact(other),
+            other => Timed::Exact(Box::new(other.timed_copy()), bvhlab_trace::thp::copy(tris)),
+        }
+    }
+
+    /// The compressed layouts (traced exactly) with their arrays copied to memory advised for huge
+    /// pages (`bvhlab_trace::thp`), as the fast paths' are, so their slowdown against bvh2 measures
+    /// the layout and not the page size. Other layouts: a plain clone (not used for timing).
+    fn timed_copy(&self) -> Layout {
+        use bvhlab_trace::thp::copy;
+        match self {
+            Layout::QbvhChunks(l) => Layout::QbvhChunks(qbvh_chunks::QbvhChunks {
+                words: copy(&l.words),
+                keys: copy(&l.keys),
+                offsets: copy(&l.offsets),
+                prims: copy(&l.prims),
+                ..l.clone()
+            }),
+            Layout::Octree(l) => Layout::Octree(octree::Octree {
+                nodes: copy(&l.nodes),
+                sizes: copy(&l.sizes),
+                prims: copy(&l.prims),
+                ..l.clone()
+            }),
+            Layout::Octree1Bit(l) => Layout::Octree1Bit(octree_1bit::Octree1Bit {
+                words: copy(&l.words),
+                offsets: copy(&l.offsets),
+                prims: copy(&l.prims),
+                ..l.clone()
+            }),
+            other => other.clone(),
         }
     }
 
@@ -341,17 +371,22 @@ pub enum Timed<'a> {
     /// The node rows copied to memory advised for huge pages ([`wide::WideBvh::timed_copy`]).
     Wide(wide::WideBvh, bvhlab_trace::PackStore),
     Cw(cwbvh::CwBvh, bvhlab_trace::PackStore),
-    Exact(&'a Layout),
+    /// A compressed layout's advised copy and the triangles' (its exact test reads them).
+    Exact(Box<Layout>, Vec<Triangle>),
 }
 
 impl Timed<'_> {
-    /// Closest hits of `rays` (what is timed). `tris` is only read by the exact traversals.
+    /// Closest hits of `rays` (what is timed). The exact traversals read the copy of the
+    /// triangles made by [`Layout::timed`] (`tris` is the same triangles; kept for callers).
     pub fn hits(&self, tris: &[Triangle], rays: &[Ray]) -> Vec<bvhlab_trace::Hit> {
         match self {
             Timed::Bvh2(f) => f.hits(rays),
             Timed::Wide(w, store) => w.hits(store, rays),
             Timed::Cw(c, store) => c.hits(store, rays),
-            Timed::Exact(l) => l.trace(tris, rays).hits,
+            Timed::Exact(l, own) => {
+                debug_assert_eq!(own.len(), tris.len());
+                l.trace(own, rays).hits
+            }
         }
     }
 }

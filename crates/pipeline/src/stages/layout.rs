@@ -26,8 +26,8 @@ use std::collections::BTreeMap;
 ///    against bvh2's time, so every layout node is timed again.
 /// 7: bvh2's timed traversal reads one arena of pairs and triangles by offsets (faster, same hits);
 ///    every layout's slowdown is against bvh2's time, so every layout node is timed again.
-/// 8: the timed layouts' memory is advised for transparent huge pages (`bvhlab_trace::thp`):
-///    every layout node is timed again.
+/// 8: the timed layouts' memory (the compressed layouts' arrays and triangles too) is advised for
+///    transparent huge pages (`bvhlab_trace::thp`): every layout node is timed again.
 pub const LAYOUT_VERSION: u32 = 8;
 
 /// A layout request: a layout with its parameters, or the `auto` search (Kilian 2021 layouts; the
