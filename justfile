@@ -77,7 +77,7 @@ bench-trace RUNS="3" *SCENES="":
     echo "# uptime: $(uptime)"
     # The binary tree is built as tinybvh builds its BVH8_CPU's (BuildAVX: 8 bins on all axes), so the ratios compare
     # traversals over trees of one construction. AXES=largest: the thesis' binned SAH (16 bins, largest axis) instead.
-    # BINS=N: N bins (default 8, or 16 with AXES=largest); BINS=32 is the build that passes issue 19's build target.
+    # BINS=N: N bins (default 8, or 16 with AXES=largest); AXES=largest BINS=32 is the build that passes issue 19's build target.
     # tinybvh's BVH8_CPU served over bvhlab's own rays (scripts/anchors/build.sh), paired with bvh8 per round: bvh8/Ts.
     repo=$PWD; source scripts/anchors/build.sh
     cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --tools ../shared/tools --axes "${AXES:-all}" ${BINS:+--bins "$BINS"} ${serve_trace:+--tinybvh-serve "$serve_trace"} $scenes

@@ -24,7 +24,8 @@
 //! its like; `bvh2/Es`, `bvh4/Es` are ratios of medians).
 //! Every side traces on transparent huge pages where the kernel offers them: bvhlab's timed layouts
 //! and Embree advise their memory, and the tinybvh programs run with `glibc.malloc.hugetlb=1`
-//! (`BVHLAB_THP=0`: none of them; the stderr line says how many MiB each side got).
+//! (`BVHLAB_THP=0`: none of them, `PR_SET_THP_DISABLE` for this process and its children; the
+//! stderr line says how many MiB bvhlab and the served tinybvh got).
 //! Before timing, the fast hits of 10^4 rays are checked against the exact traversal
 //! (`bvhlab_trace::check_agreement`).
 use bvhlab_builders::{binned_sah, TopDownConfig};
@@ -225,6 +226,9 @@ fn anchor(tool: &str, args: &[&str]) -> Option<String> {
 }
 
 fn main() {
+    // Decided before anything is allocated: with BVHLAB_THP=0 huge pages are off for the whole
+    // process (Embree's scene too) and the anchors it starts.
+    bvhlab_trace::thp::enabled();
     let mut args = std::env::args().skip(1);
     let (mut runs, mut n_rays, mut tools) = (3usize, 1_000_000usize, "../shared/tools".to_string());
     let mut all_axes = false;
@@ -374,7 +378,7 @@ fn main() {
             partners.push(Paired {
                 pair_with: 2,
                 pass: Box::new(move || {
-                    let (h, secs) = e.trace(rays).ok()?;
+                    let (h, secs) = e.trace(rays).map_err(|err| eprintln!("Embree pass: {err}")).ok()?;
                     hits.set(h.iter().filter(|h| h.is_hit()).count());
                     Some(secs)
                 }),

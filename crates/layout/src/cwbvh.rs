@@ -266,7 +266,8 @@ impl CwBvh {
     pub fn timed_copy(&self) -> CwBvh {
         CwBvh {
             nodes: bvhlab_trace::thp::copy(&self.nodes),
-            leaves: self.leaves.clone(),
+            // Read by the timed walk (a leaf's first pack).
+            leaves: bvhlab_trace::thp::copy(&self.leaves),
             prim_indices: self.prim_indices.clone(),
             root_bounds: self.root_bounds,
             collapse: self.collapse,

@@ -294,24 +294,37 @@ impl Layout {
     fn timed_copy(&self) -> Layout {
         use bvhlab_trace::thp::copy;
         match self {
+            // Every field named (no `..l.clone()`, which would copy the large arrays once more).
             Layout::QbvhChunks(l) => Layout::QbvhChunks(qbvh_chunks::QbvhChunks {
+                bits: l.bits,
+                chunk_bytes: l.chunk_bytes,
+                frame: l.frame,
+                world: l.world,
                 words: copy(&l.words),
                 keys: copy(&l.keys),
                 offsets: copy(&l.offsets),
                 prims: copy(&l.prims),
-                ..l.clone()
+                nodes: l.nodes,
+                fill: l.fill,
             }),
             Layout::Octree(l) => Layout::Octree(octree::Octree {
+                world: l.world,
+                margin: l.margin,
                 nodes: copy(&l.nodes),
                 sizes: copy(&l.sizes),
                 prims: copy(&l.prims),
-                ..l.clone()
+                config: l.config.clone(),
             }),
             Layout::Octree1Bit(l) => Layout::Octree1Bit(octree_1bit::Octree1Bit {
+                world: l.world,
+                margin: l.margin,
+                config: l.config.clone(),
                 words: copy(&l.words),
+                chunks: l.chunks,
+                nodes: l.nodes,
+                chunk_fill: l.chunk_fill,
                 offsets: copy(&l.offsets),
                 prims: copy(&l.prims),
-                ..l.clone()
             }),
             other => other.clone(),
         }
@@ -384,7 +397,8 @@ impl Timed<'_> {
             Timed::Wide(w, store) => w.hits(store, rays),
             Timed::Cw(c, store) => c.hits(store, rays),
             Timed::Exact(l, own) => {
-                debug_assert_eq!(own.len(), tris.len());
+                // `own` is `Layout::timed`'s copy of the caller's triangles: the same ones.
+                debug_assert!(own.len() == tris.len() && own.first() == tris.first() && own.last() == tris.last());
                 l.trace(own, rays).hits
             }
         }

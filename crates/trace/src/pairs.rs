@@ -142,6 +142,7 @@ impl Arena {
         unsafe {
             std::ptr::copy_nonoverlapping(tris.as_ptr(), lines.as_mut_ptr().add(np) as *mut WTri, tris.len());
         }
+        crate::thp::settle(&lines);
         Some(Arena { lines, pairs: np, tris: tris.len() })
     }
 
