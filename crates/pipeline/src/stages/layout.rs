@@ -28,7 +28,9 @@ use std::collections::BTreeMap;
 ///    every layout's slowdown is against bvh2's time, so every layout node is timed again.
 /// 8: the timed layouts' memory (the compressed layouts' arrays and triangles too) is advised for
 ///    transparent huge pages (`bvhlab_trace::thp`): every layout node is timed again.
-pub const LAYOUT_VERSION: u32 = 8;
+/// 9: cwbvh's leaf table advised too and buffers collapsed once filled (changed on main after 8
+///    was first used): every layout node is timed again.
+pub const LAYOUT_VERSION: u32 = 9;
 
 /// A layout request: a layout with its parameters, or the `auto` search (Kilian 2021 layouts; the
 /// chosen one then behaves as if it had been given).

@@ -34,7 +34,10 @@ use std::collections::BTreeMap;
 ///    (`bvhlab_trace::pairs::Arena`: same hits, 5-9 % faster): every timed bvh2 anchor is re-measured.
 /// 13: the timed layouts' memory is advised for transparent huge pages (`bvhlab_trace::thp`, as
 ///    Embree's BVHs are; dragon +8-14 %, same hits): every timed anchor is re-measured.
-pub const MEASURE_VERSION: u32 = 13;
+/// 14: the compressed layouts and cwbvh's leaf table on huge pages too, buffers collapsed once
+///    filled, and Embree's peer trace allocating its hits inside its timed region (changed on main
+///    after 13 was first used): every timed value is re-measured.
+pub const MEASURE_VERSION: u32 = 14;
 
 /// A ray set of the measure stage (thesis 4.4).
 #[derive(Clone, Copy, Debug, PartialEq)]
