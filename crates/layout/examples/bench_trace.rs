@@ -37,18 +37,19 @@ use rayon::prelude::*;
 use std::process::Command;
 
 /// The machine's control for `2T/1T`: a pass shaped like a trace (the same rays in the same rayon
-/// chunks, a `Hit` written per ray) whose work per ray is a chain of 64 dependent multiply-adds
-/// and reads no memory but the ray. On this 2-vCPU VM two threads of pure arithmetic gained only
-/// 1.3-2.1x from one, median 1.5-1.6 (2026-11-29): the host does not run two busy vCPUs at one's
-/// speed (clock or sharing; the guest cannot tell which). The traversal's own speed-up is read
-/// against it: well above it, the traversal is not what keeps `2T/1T` below 2.
+/// chunks, the same `vec![Hit::NONE; n]` before them, a `Hit` written per ray) whose work per ray
+/// is a chain of 64 dependent xorshift-multiply steps in registers (splitmix64's mixing step; an
+/// affine step such as `x * a + b` would not do: LLVM folds 64 of them into one multiply-add), about
+/// 5 cycles each, so a pass lasts about as long as bvh8's. Read `2T/1T` against it: the traversal
+/// cannot be blamed for scaling the way register-only work does on the same machine.
 fn alu_pass(rays: &[Ray]) -> Vec<Hit> {
     let mut hits = vec![Hit::NONE; rays.len()];
     hits.par_chunks_mut(1024).zip(rays.par_chunks(1024)).for_each(|(h, r)| {
         for (h, r) in h.iter_mut().zip(r) {
-            let mut x = u64::from(r.origin.x.to_bits());
+            let mut x = u64::from(r.origin.x.to_bits()) | 1;
             for _ in 0..64 {
-                x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                x ^= x >> 29;
+                x = x.wrapping_mul(0xbf58_476d_1ce4_e5b9);
             }
             h.prim = (x >> 32) as u32;
         }
@@ -369,7 +370,7 @@ fn main() {
             (1, Box::new(|| w4.hits(&s4, &rays))),
             (1, Box::new(|| w8.hits(&s8, &rays))),
             (2, Box::new(|| w8.hits(&s8, &rays))),
-            // The machine's own 2-thread scaling, right after bvh8's (same phase of the machine).
+            // The register-only control's 2-thread scaling, right after bvh8's (same phase of the machine).
             (1, Box::new(|| alu_pass(&rays))),
             (2, Box::new(|| alu_pass(&rays))),
             (1, Box::new(|| cw.hits(&s8, &rays))),
@@ -413,7 +414,7 @@ fn main() {
             e_runs.extend(anchor(&format!("{tools}/embree-anchor"), &[spec, "1", "1"]));
             t_runs.extend(anchor(&format!("{tools}/tinybvh-anchor"), &[spec, "1"]));
         });
-        let [(m2, c2), (m4, c4), (m8, c8), (m8x2, _), _, _, (mcw, ccw)] = m[..] else { unreachable!() };
+        let [(m2, c2), (m4, c4), (m8, c8), (m8x2, _), (malu, _), (malu2, _), (mcw, ccw)] = m[..] else { unreachable!() };
         let huge = (huge_ours, tiny.as_ref().and_then(|t| t.huge_mib()));
         // bvh8's 2-thread speed-up paired by round (its 1-thread seconds over its 2-thread seconds
         // in the same round, median over the rounds): a slow phase of the machine within a round
@@ -421,7 +422,7 @@ fn main() {
         let on_one = |one: &[f64], two: &[f64]| median(&one.iter().zip(two).map(|(one, two)| one / two).collect::<Vec<_>>());
         let two_on_one = on_one(&secs[2], &secs[3]);
         let alu_two_on_one = on_one(&secs[4], &secs[5]);
-        // Rounds in which bvh8 gained more from the second thread than the arithmetic did.
+        // Rounds in which bvh8 gained at least as much from the second thread as the control did.
         let beat_alu = (0..secs[2].len()).filter(|&r| secs[2][r] / secs[3][r] >= secs[4][r] / secs[5][r]).count();
         let none = Vec::new();
         let (tiny_pairs, embree_pairs) = (tiny_at.map_or(&none, |i| &paired[i]), embree_at.map_or(&none, |i| &paired[i]));
@@ -496,7 +497,7 @@ fn main() {
             eprintln!("{name}: bvh8 vs tinybvh on the same rays, paired per round: faster in {r8s_faster} of {} rounds", tiny_pairs.len());
         }
         eprintln!(
-            "{name}: bvh8 2 threads over 1: paired by round {two_on_one:.2}x, ratio of the medians {:.2}x; the machine's (arithmetic, no memory) {alu_two_on_one:.2}x, bvh8 at or above it in {beat_alu} of {} rounds",
+            "{name}: bvh8 2 threads over 1: paired by round {two_on_one:.2}x, ratio of the medians {:.2}x; the register-only control ({malu:.2} / {malu2:.2} Mrays/s on 1 / 2 threads) {alu_two_on_one:.2}x, bvh8 at or above it in {beat_alu} of {} rounds",
             m8x2 / m8,
             secs[2].len()
         );
@@ -505,5 +506,5 @@ fn main() {
         }
     }
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays (its scene committed once, generation untimed; median of one pass per round, each paired with a pass of bvh8 as Ts: bvh8/Es); T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); every side on transparent huge pages unless BVHLAB_THP=0 (bvhlab's timed layouts and Embree advise their memory, the tinybvh programs get glibc.malloc.hugetlb=1); 2T/1T = median over the rounds of bvh8's 1-thread over its 2-thread seconds in the same round; alu2T/1T = the same for a pass of pure arithmetic over the same rays right after it (the machine's own 2-thread scaling: one busy core may clock higher than two); loadavg at end: {}", load.trim());
+    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays (its scene committed once, generation untimed; median of one pass per round, each paired with a pass of bvh8 as Ts: bvh8/Es); T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); every side on transparent huge pages unless BVHLAB_THP=0 (bvhlab's timed layouts and Embree advise their memory, the tinybvh programs get glibc.malloc.hugetlb=1); 2T/1T = median over the rounds of bvh8's 1-thread over its 2-thread seconds in the same round; alu2T/1T = the same for a control pass right after it, shaped like a trace but register-only work per ray (64 dependent xorshift-multiply steps): how the machine scales work that never waits on memory; loadavg at end: {}", load.trim());
 }
