@@ -64,7 +64,7 @@ kilian:
 # bvh8/Ts: the median of the paired ratios). Every side on transparent huge pages (bvhlab's timed layouts and Embree
 # advise their memory; tinybvh runs with glibc.malloc.hugetlb=1); BVHLAB_THP=0: none of them.
 # Scenes: stanford_dragon, conference, breakfast_room, stanford_bunny when present.
-bench-trace RUNS="3" *SCENES="":
+bench-trace RUNS="2" *SCENES="":
     #!/usr/bin/env bash
     set -euo pipefail
     scenes="{{SCENES}}"
@@ -80,7 +80,9 @@ bench-trace RUNS="3" *SCENES="":
     # BINS=N: N bins (default 8, or 16 with AXES=largest); AXES=largest BINS=32 is the build that passes issue 19's build target.
     # tinybvh's BVH8_CPU served over bvhlab's own rays (scripts/anchors/build.sh), paired with bvh8 per round: bvh8/Ts.
     repo=$PWD; source scripts/anchors/build.sh
-    cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --tools ../shared/tools --axes "${AXES:-all}" ${BINS:+--bins "$BINS"} ${serve_trace:+--tinybvh-serve "$serve_trace"} $scenes
+    # RUNS rounds in each of PROCS processes (default 3), pooled: one process's medians on the dragon moved by 10-15 %
+    # from process to process (docs/decisions.md), while the anchors run a process per round.
+    cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --procs "${PROCS:-3}" --tools ../shared/tools --axes "${AXES:-all}" ${BINS:+--bins "$BINS"} ${serve_trace:+--tinybvh-serve "$serve_trace"} $scenes
 
 # issue 19.4: binned SAH (thesis and all-axes configurations) against tinybvh's BuildAVX, alternated: 1 thread against
 # the anchor built single-threaded (where tiny_bvh.h is found), 2 threads against the shared (threaded) anchor.

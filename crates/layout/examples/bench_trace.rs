@@ -1,5 +1,5 @@
 //! Trace throughput of bvh2, bvh4 and bvh8 beside Embree and tinybvh, in one invocation (issue 19):
-//! `cargo run --release -p bvhlab-layout --example bench_trace -- [--runs N] [--rays N] [--tools DIR] [--axes all] [--bins N] [--tinybvh-serve PROGRAM] SCENE...`
+//! `cargo run --release -p bvhlab-layout --example bench_trace -- [--runs N] [--procs P] [--rays N] [--tools DIR] [--axes all] [--bins N] [--tinybvh-serve PROGRAM] SCENE...`
 //!
 //! Per scene: binned SAH (16 bins, leaf 2, c_T = 3, c_I = 2: `eval --build binned-sah`'s defaults;
 //! `--axes all`: 8 bins on all three axes, `binned-sah:axes=all:bins=8`, the tree tinybvh's BVH8_CPU
@@ -26,6 +26,9 @@
 //! and Embree advise their memory, and the tinybvh programs run with `glibc.malloc.hugetlb=1`
 //! (`BVHLAB_THP=0`: none of them, `PR_SET_THP_DISABLE` for this process and its children; the
 //! stderr line says how many MiB bvhlab and the served tinybvh got).
+//! `--procs P`: the whole measurement in P processes one after the other (each `--runs` rounds),
+//! their rounds pooled per scene before the medians (`just bench-trace` runs 3): one process's
+//! figures on the dragon moved by 10-15 % from process to process ([`Raw`]).
 //! Before timing, the fast hits of 10^4 rays are checked against the exact traversal
 //! (`bvhlab_trace::check_agreement`).
 use bvhlab_builders::{binned_sah, TopDownConfig};
@@ -70,7 +73,7 @@ fn thread_cpu_ns() -> Option<u64> {
 /// One timed configuration: a traversal on a thread count.
 type Job<'a> = (usize, Box<dyn Fn() -> Vec<Hit> + Sync + 'a>);
 
-/// Median Mrays/s of each job over `runs` rounds, the jobs alternated within a round (so a slow
+/// Seconds of each job in each of `runs` rounds, the jobs alternated within a round (so a slow
 /// phase of the machine falls on every job alike, not on the one that happened to run then): by
 /// wall time, and (1 thread) by the worker thread's own CPU time, which a loaded machine inflates
 /// less (the wall time is what compares with the anchors, which report wall time). `after_round`
@@ -89,12 +92,11 @@ struct Paired<'a> {
 type PairedRuns = Vec<(f64, f64)>;
 
 fn mrays(
-    rays: usize,
     runs: usize,
     jobs: &[Job],
     mut partners: Vec<Paired>,
     mut after_round: impl FnMut(),
-) -> (Vec<(f64, Option<f64>)>, Vec<PairedRuns>, Vec<Vec<f64>>) {
+) -> (Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<PairedRuns>) {
     let pools: Vec<rayon::ThreadPool> = jobs.iter().map(|(n, _)| pool(*n)).collect();
     let mut t = vec![Vec::new(); jobs.len()];
     let mut c = vec![Vec::new(); jobs.len()];
@@ -133,15 +135,61 @@ fn mrays(
         }
         after_round();
     }
-    let m = jobs
-        .iter()
-        .enumerate()
-        .map(|(j, (n, _))| {
-            let cpu = (*n == 1 && c[j].len() == runs).then(|| rays as f64 / median(&c[j]) / 1e6);
-            (rays as f64 / median(&t[j]) / 1e6, cpu)
-        })
-        .collect();
-    (m, paired, t)
+    (t, c, paired)
+}
+
+/// Threads of each timed job, in the order `main` lists them: bvh2, bvh4, bvh8, bvh8 on 2
+/// threads, the register-only control on 1 and 2, cwbvh.
+const THREADS: [usize; 7] = [1, 1, 1, 2, 1, 2, 1];
+
+/// One process's measurements of one scene, everything the table is computed from; with
+/// `--procs P` every process prints its own (`--raw`) and the parent pools them ([`Raw::merge`]):
+/// on the dragon one process's medians moved by 10-15 % from process to process (bvh8 2.79-3.62
+/// Mrays/s over six processes, Embree's in those processes 3.13-3.98, their paired ratio 0.70-1.01,
+/// 2026-11-29) with the timed buffers on huge pages alike in each (smaps), while the anchors run a
+/// process per round anyway.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct Raw {
+    name: String,
+    tris: usize,
+    rays: usize,
+    hit_frac: f64,
+    /// Per job ([`THREADS`]), per round: wall seconds and the worker's CPU seconds (1 thread).
+    secs: Vec<Vec<f64>>,
+    cpu: Vec<Vec<f64>>,
+    /// Per round: (their seconds, bvh8's) for tinybvh's served BVH8_CPU and for Embree.
+    tiny_pairs: PairedRuns,
+    embree_pairs: PairedRuns,
+    /// The anchors' JSON, one per invocation.
+    e_runs: Vec<String>,
+    t_runs: Vec<String>,
+    tiny_hit: Option<f64>,
+    embree_hit: Option<f64>,
+    /// MiB on huge pages, one per process: bvhlab's timed layouts, the served tinybvh.
+    huge_ours: Vec<f64>,
+    huge_tiny: Vec<f64>,
+    procs: usize,
+}
+
+impl Raw {
+    /// Pools another process's rounds of the same scene (the same rays: hit fractions kept).
+    fn merge(&mut self, o: Raw) {
+        for (a, b) in self.secs.iter_mut().zip(o.secs) {
+            a.extend(b);
+        }
+        for (a, b) in self.cpu.iter_mut().zip(o.cpu) {
+            a.extend(b);
+        }
+        self.tiny_pairs.extend(o.tiny_pairs);
+        self.embree_pairs.extend(o.embree_pairs);
+        self.e_runs.extend(o.e_runs);
+        self.t_runs.extend(o.t_runs);
+        self.tiny_hit = self.tiny_hit.or(o.tiny_hit);
+        self.embree_hit = self.embree_hit.or(o.embree_hit);
+        self.huge_ours.extend(o.huge_ours);
+        self.huge_tiny.extend(o.huge_tiny);
+        self.procs += o.procs;
+    }
 }
 
 /// tinybvh's BVH8_CPU traversal served by `scripts/anchors/tinybvh_trace_serve.cpp` (see there): it
@@ -247,12 +295,124 @@ fn anchor(tool: &str, args: &[&str]) -> Option<String> {
     String::from_utf8(out.stdout).ok()?.lines().last().map(str::to_string)
 }
 
+/// The table row of one scene (and its stderr lines) from its measurements, pooled or not.
+fn summarize(r: &Raw) {
+    // Median Mrays/s of each job by wall time and (1 thread, every round timed) by CPU time.
+    let m: Vec<(f64, Option<f64>)> = (0..THREADS.len())
+        .map(|j| {
+            let cpu = (THREADS[j] == 1 && r.cpu[j].len() == r.secs[j].len()).then(|| r.rays as f64 / median(&r.cpu[j]) / 1e6);
+            (r.rays as f64 / median(&r.secs[j]) / 1e6, cpu)
+        })
+        .collect();
+    let [(m2, c2), (m4, c4), (m8, c8), (m8x2, _), (malu, _), (malu2, _), (mcw, ccw)] = m[..] else { unreachable!() };
+    let (name, secs, rays) = (&r.name, &r.secs, r.rays);
+    // bvh8's 2-thread speed-up paired by round (its 1-thread seconds over its 2-thread seconds
+    // in the same round, median over the rounds): a slow phase of the machine within a round
+    // falls on both, where the ratio of the two medians took it on one side only.
+    let on_one = |one: &[f64], two: &[f64]| median(&one.iter().zip(two).map(|(one, two)| one / two).collect::<Vec<_>>());
+    let two_on_one = on_one(&secs[2], &secs[3]);
+    let alu_two_on_one = on_one(&secs[4], &secs[5]);
+    // Rounds in which bvh8 gained at least as much from the second thread as the control did.
+    let beat_alu = (0..secs[2].len()).filter(|&r| secs[2][r] / secs[3][r] >= secs[4][r] / secs[5][r]).count();
+    let (tiny_pairs, embree_pairs) = (&r.tiny_pairs, &r.embree_pairs);
+    // A partner's Mrays/s (its median pass), bvh8's paired ratio against it (median over the
+    // rounds of the partner's seconds over bvh8's) and in how many rounds bvh8 was faster.
+    let paired_stats = |p: &PairedRuns| {
+        let mr = (!p.is_empty()).then(|| rays as f64 / median(&p.iter().map(|p| p.0).collect::<Vec<_>>()) / 1e6);
+        let r = (!p.is_empty()).then(|| median(&p.iter().map(|(th, ours)| th / ours).collect::<Vec<_>>()));
+        (mr, r, p.iter().filter(|(th, ours)| ours < th).count())
+    };
+    let (es, r8e, r8e_faster) = paired_stats(embree_pairs);
+    // Median of a field over the anchor's runs (None when no run gave it).
+    let med = |runs: &[String], after: &str, key: &str| {
+        let v: Vec<f64> = runs.iter().filter_map(|j| field(j, after, key)).collect();
+        (!v.is_empty()).then(|| median(&v))
+    };
+    let (e_runs, t_runs) = (&r.e_runs, &r.t_runs);
+    let em = med(e_runs, "scene_commit_ms", "mrays_per_s_1thread");
+    let eh = med(e_runs, "scene_commit_ms", "hit_fraction");
+    let tm = med(t_runs, "trace_bvh8_cpu", "mrays_per_s_1thread");
+    let th = med(t_runs, "trace_bvh8_cpu", "hit_fraction");
+    // Same rays: tinybvh's Mrays/s (median pass), its hit fraction, and the median over the rounds
+    // of bvh8's paired ratio (tinybvh's seconds over bvh8's in the same round).
+    let (ts, r8s, r8s_faster) = paired_stats(tiny_pairs);
+    let tsh = r.tiny_hit.filter(|_| ts.is_some());
+    let each = |runs: &[String], after: &str| {
+        runs.iter().filter_map(|j| field(j, after, "mrays_per_s_1thread")).map(|v| format!("{v:.2}")).collect::<Vec<_>>()
+    };
+    let mib = |v: &[f64]| if v.is_empty() { "-".to_string() } else { v.iter().map(|v| format!("{v:.0}")).collect::<Vec<_>>().join("/") };
+    eprintln!(
+        "{name}: anchor runs, Mrays/s: embree {:?}, tinybvh {:?}; Embree on the same rays: hit% {}; MiB on huge pages: bvhlab {}, tinybvh-serve {} (BVHLAB_THP={})",
+        each(e_runs, "scene_commit_ms"),
+        each(t_runs, "trace_bvh8_cpu"),
+        r.embree_hit.map_or("-".into(), |h| format!("{:.2}", 100.0 * h)),
+        mib(&r.huge_ours),
+        mib(&r.huge_tiny),
+        if bvhlab_trace::thp::enabled() { "on" } else { "0" }
+    );
+    let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.2}", 100.0 * v));
+    let num = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
+    let ratio = |a: f64, b: Option<f64>| b.map_or("-".to_string(), |b| format!("{:.2}x", a / b));
+    println!(
+        "{:<16} {:>8} {:>7.2} {:>7} {:>7} {:>7} | {:>7.2} {:>7.2} {:>7.2} {:>8.2} {:>7.2} | {:>7} {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>7.2}x {:>7.2}x {:>7.2}x",
+        name,
+        r.tris,
+        100.0 * r.hit_frac,
+        pct(eh),
+        pct(th),
+        pct(tsh),
+        m2,
+        m4,
+        m8,
+        m8x2,
+        mcw,
+        num(em),
+        num(es),
+        num(tm),
+        num(ts),
+        ratio(m2, em),
+        ratio(m4, em),
+        ratio(m2, es),
+        ratio(m4, es),
+        r8e.map_or("-".to_string(), |r| format!("{r:.2}x")),
+        ratio(m8, tm),
+        r8s.map_or("-".to_string(), |r| format!("{r:.2}x")),
+        two_on_one,
+        alu_two_on_one,
+        mcw / m8
+    );
+    let c = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
+    println!("{:<16} {:>41} | {:>7} {:>7} {:>7} {:>8} {:>7}   (by the worker's CPU time)", "", "", c(c2), c(c4), c(c8), "", c(ccw));
+    if r8s.is_some() {
+        eprintln!("{name}: bvh8 vs tinybvh on the same rays, paired per round: faster in {r8s_faster} of {} rounds", tiny_pairs.len());
+    }
+    eprintln!(
+        "{name}: bvh8 2 threads over 1: paired by round {two_on_one:.2}x, ratio of the medians {:.2}x; the register-only control ({malu:.2} / {malu2:.2} Mrays/s on 1 / 2 threads) {alu_two_on_one:.2}x, bvh8 at or above it in {beat_alu} of {} rounds",
+        m8x2 / m8,
+        secs[2].len()
+    );
+    if r8e.is_some() {
+        eprintln!("{name}: bvh8 vs Embree on the same rays, paired per round: faster in {r8e_faster} of {} rounds", embree_pairs.len());
+    }
+    if r.procs > 1 {
+        eprintln!("{name}: pooled over {} processes, {} rounds", r.procs, secs[2].len());
+    }
+}
+
+/// The table's legend, after the last scene.
+fn print_legend() {
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays (its scene committed once, generation untimed; median of one pass per round, each paired with a pass of bvh8 as Ts: bvh8/Es); T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); every side on transparent huge pages unless BVHLAB_THP=0 (bvhlab's timed layouts and Embree advise their memory, the tinybvh programs get glibc.malloc.hugetlb=1); 2T/1T = median over the rounds of bvh8's 1-thread over its 2-thread seconds in the same round (with --procs P: over every process's rounds); alu2T/1T = the same for a control pass right after it, shaped like a trace but register-only work per ray (64 dependent xorshift-multiply steps): how the machine scales work that never waits on memory; loadavg at end: {}", load.trim());
+}
+
 fn main() {
     // Decided before anything is allocated: with BVHLAB_THP=0 huge pages are off for the whole
     // process (Embree's scene too) and the anchors it starts.
     bvhlab_trace::thp::enabled();
-    let mut args = std::env::args().skip(1);
+    let argv: Vec<String> = std::env::args().skip(1).collect();
+    let mut args = argv.iter().cloned();
     let (mut runs, mut n_rays, mut tools) = (3usize, 1_000_000usize, "../shared/tools".to_string());
+    let (mut procs, mut raw_index) = (1usize, None::<usize>);
     let mut all_axes = false;
     let mut bins: Option<u32> = None;
     let mut serve: Option<String> = None;
@@ -271,11 +431,14 @@ fn main() {
             }
             "--bins" => bins = Some(args.next().and_then(|v| v.parse().ok()).expect("--bins N")),
             "--tinybvh-serve" => serve = Some(args.next().expect("--tinybvh-serve PROGRAM")),
+            "--procs" => procs = args.next().and_then(|v| v.parse::<usize>().ok()).expect("--procs N").max(1),
+            // A child of `--procs`: its measurements as JSON lines, no table.
+            "--raw" => raw_index = Some(args.next().and_then(|v| v.parse().ok()).expect("--raw I")),
             _ => scenes.push(a),
         }
     }
     if scenes.is_empty() {
-        eprintln!("usage: bench_trace [--runs N] [--rays N] [--tools DIR] [--axes largest|all] [--bins N] [--tinybvh-serve PROGRAM] SCENE...");
+        eprintln!("usage: bench_trace [--runs N] [--procs P] [--rays N] [--tools DIR] [--axes largest|all] [--bins N] [--tinybvh-serve PROGRAM] SCENE...");
         std::process::exit(2);
     }
     let avx2 = {
@@ -295,12 +458,52 @@ fn main() {
     } else {
         format!("binned-sah (bins={bins}, largest axis)")
     };
-    println!("# bench-trace: {n_rays} random rays, 1 thread unless said, median of {runs} runs; tree: {tree}; AVX2: {avx2}; loadavg at start: {}", load.trim());
-    println!(
-        "{:<16} {:>8} {:>7} {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>8} {:>7} | {:>7} {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>8}",
-        "scene", "tris", "hit%", "hit%E", "hit%T", "hit%Ts", "bvh2", "bvh4", "bvh8", "bvh8x2T", "cwbvh", "embree", "E-same", "tinybvh", "T-same",
-        "bvh2/E", "bvh4/E", "bvh2/Es", "bvh4/Es", "bvh8/Es", "bvh8/T", "bvh8/Ts", "2T/1T", "alu2T/1T", "cw/bvh8"
-    );
+    if raw_index.is_none() {
+        let rounds = if procs > 1 { format!("{procs} processes x {runs} rounds, pooled") } else { format!("{runs} runs") };
+        println!("# bench-trace: {n_rays} random rays, 1 thread unless said, median of {rounds}; tree: {tree}; AVX2: {avx2}; loadavg at start: {}", load.trim());
+        println!(
+            "{:<16} {:>8} {:>7} {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>8} {:>7} | {:>7} {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8} {:>8} {:>8}",
+            "scene", "tris", "hit%", "hit%E", "hit%T", "hit%Ts", "bvh2", "bvh4", "bvh8", "bvh8x2T", "cwbvh", "embree", "E-same", "tinybvh", "T-same",
+            "bvh2/E", "bvh4/E", "bvh2/Es", "bvh4/Es", "bvh8/Es", "bvh8/T", "bvh8/Ts", "2T/1T", "alu2T/1T", "cw/bvh8"
+        );
+    }
+    if procs > 1 {
+        // Each process measures every scene in turn (`--raw`); their rounds are pooled per scene.
+        let exe = std::env::current_exe().expect("own path");
+        let mut child_args = Vec::new();
+        let mut it = argv.iter();
+        while let Some(a) = it.next() {
+            if a == "--procs" {
+                it.next();
+            } else {
+                child_args.push(a.clone());
+            }
+        }
+        let mut pooled: Vec<Raw> = Vec::new();
+        for i in 0..procs {
+            let out = Command::new(&exe)
+                .args(&child_args)
+                .args(["--raw", &i.to_string()])
+                .stderr(std::process::Stdio::inherit())
+                .output()
+                .expect("bench_trace child");
+            if !out.status.success() {
+                eprintln!("bench_trace: process {i} failed: {}", out.status);
+                std::process::exit(1);
+            }
+            for line in String::from_utf8_lossy(&out.stdout).lines() {
+                let Some(json) = line.strip_prefix("RAW ") else { continue };
+                let r: Raw = serde_json::from_str(json).expect("a child's measurements");
+                match pooled.iter_mut().find(|p| p.name == r.name) {
+                    Some(p) => p.merge(r),
+                    None => pooled.push(r),
+                }
+            }
+        }
+        pooled.iter().for_each(summarize);
+        print_legend();
+        return;
+    }
     for spec in &scenes {
         let scene = match bvhlab_geom::load_scene(spec) {
             Ok(s) => s,
@@ -355,7 +558,8 @@ fn main() {
             let n = sample.len().max(1) as f64;
             format!("{:.1}/{:.1}", st.total_steps as f64 / n, st.total_intersections as f64 / n)
         };
-        eprintln!(
+        if raw_index.is_none_or(|i| i == 0) {
+            eprintln!(
             "{name}: steps/tests per ray: bvh2 {}, bvh4 {}, bvh8 {}, cwbvh {}; total bytes/triangle: bvh8 {:.1}, cwbvh {:.1}",
             per_ray(bvhlab_trace::trace(&bvh, tris, sample)),
             per_ray(w4.trace(tris, sample)),
@@ -363,7 +567,8 @@ fn main() {
             per_ray(cw.trace(tris, sample)),
             w8.memory().total_bytes as f64 / tris.len() as f64,
             cw.memory().total_bytes as f64 / tris.len() as f64,
-        );
+            );
+        }
         let hit_frac = f2.hits(&rays).iter().filter(|h| h.is_hit()).count() as f64 / rays.len() as f64;
         let jobs: Vec<Job> = vec![
             (1, Box::new(|| f2.hits(&rays))),
@@ -410,101 +615,36 @@ fn main() {
             });
             partners.len() - 1
         });
-        let (m, paired, secs) = mrays(rays.len(), runs, &jobs, partners, || {
+        let (secs, cpu, paired) = mrays(runs, &jobs, partners, || {
             e_runs.extend(anchor(&format!("{tools}/embree-anchor"), &[spec, "1", "1"]));
             t_runs.extend(anchor(&format!("{tools}/tinybvh-anchor"), &[spec, "1"]));
         });
-        let [(m2, c2), (m4, c4), (m8, c8), (m8x2, _), (malu, _), (malu2, _), (mcw, ccw)] = m[..] else { unreachable!() };
-        let huge = (huge_ours, tiny.as_ref().and_then(|t| t.huge_mib()));
-        // bvh8's 2-thread speed-up paired by round (its 1-thread seconds over its 2-thread seconds
-        // in the same round, median over the rounds): a slow phase of the machine within a round
-        // falls on both, where the ratio of the two medians took it on one side only.
-        let on_one = |one: &[f64], two: &[f64]| median(&one.iter().zip(two).map(|(one, two)| one / two).collect::<Vec<_>>());
-        let two_on_one = on_one(&secs[2], &secs[3]);
-        let alu_two_on_one = on_one(&secs[4], &secs[5]);
-        // Rounds in which bvh8 gained at least as much from the second thread as the control did.
-        let beat_alu = (0..secs[2].len()).filter(|&r| secs[2][r] / secs[3][r] >= secs[4][r] / secs[5][r]).count();
-        let none = Vec::new();
-        let (tiny_pairs, embree_pairs) = (tiny_at.map_or(&none, |i| &paired[i]), embree_at.map_or(&none, |i| &paired[i]));
-        // A partner's Mrays/s (its median pass), bvh8's paired ratio against it (median over the
-        // rounds of the partner's seconds over bvh8's) and in how many rounds bvh8 was faster.
-        let paired_stats = |p: &PairedRuns| {
-            let mr = (!p.is_empty()).then(|| rays.len() as f64 / median(&p.iter().map(|p| p.0).collect::<Vec<_>>()) / 1e6);
-            let r = (!p.is_empty()).then(|| median(&p.iter().map(|(th, ours)| th / ours).collect::<Vec<_>>()));
-            (mr, r, p.iter().filter(|(th, ours)| ours < th).count())
+        let pairs_of = |at: Option<usize>| at.map_or_else(Vec::new, |i| paired[i].clone());
+        let (tiny_pairs, embree_pairs) = (pairs_of(tiny_at), pairs_of(embree_at));
+        let raw = Raw {
+            name: name.clone(),
+            tris: tris.len(),
+            rays: rays.len(),
+            hit_frac,
+            secs,
+            cpu,
+            tiny_hit: tiny.as_ref().filter(|_| !tiny_pairs.is_empty()).map(|t| t.hit_fraction),
+            embree_hit: (!embree_pairs.is_empty()).then(|| embree_hits.get() as f64 / rays.len() as f64),
+            tiny_pairs,
+            embree_pairs,
+            e_runs,
+            t_runs,
+            huge_ours: huge_ours.into_iter().collect(),
+            huge_tiny: tiny.as_ref().and_then(|t| t.huge_mib()).into_iter().collect(),
+            procs: 1,
         };
-        let (es, r8e, r8e_faster) = paired_stats(embree_pairs);
-        // Median of a field over the anchor's runs (None when no run gave it).
-        let med = |runs: &[String], after: &str, key: &str| {
-            let v: Vec<f64> = runs.iter().filter_map(|j| field(j, after, key)).collect();
-            (!v.is_empty()).then(|| median(&v))
-        };
-        let em = med(&e_runs, "scene_commit_ms", "mrays_per_s_1thread");
-        let eh = med(&e_runs, "scene_commit_ms", "hit_fraction");
-        let tm = med(&t_runs, "trace_bvh8_cpu", "mrays_per_s_1thread");
-        let th = med(&t_runs, "trace_bvh8_cpu", "hit_fraction");
-        // Same rays: tinybvh's Mrays/s (median pass), its hit fraction, and the median over the rounds
-        // of bvh8's paired ratio (tinybvh's seconds over bvh8's in the same round).
-        let (ts, r8s, r8s_faster) = paired_stats(tiny_pairs);
-        let tsh = tiny.as_ref().filter(|_| ts.is_some()).map(|t| t.hit_fraction);
-        let each = |runs: &[String], after: &str| {
-            runs.iter().filter_map(|j| field(j, after, "mrays_per_s_1thread")).map(|v| format!("{v:.2}")).collect::<Vec<_>>()
-        };
-        let mib = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0}"));
-        eprintln!(
-            "{name}: anchor runs, Mrays/s: embree {:?}, tinybvh {:?}; Embree on the same rays: hit% {}; MiB on huge pages: bvhlab {}, tinybvh-serve {} (BVHLAB_THP={})",
-            each(&e_runs, "scene_commit_ms"),
-            each(&t_runs, "trace_bvh8_cpu"),
-            if es.is_some() { format!("{:.2}", 100.0 * embree_hits.get() as f64 / rays.len() as f64) } else { "-".into() },
-            mib(huge.0),
-            mib(huge.1),
-            if bvhlab_trace::thp::enabled() { "on" } else { "0" }
-        );
-        let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.2}", 100.0 * v));
-        let num = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
-        let ratio = |a: f64, b: Option<f64>| b.map_or("-".to_string(), |b| format!("{:.2}x", a / b));
-        println!(
-            "{:<16} {:>8} {:>7.2} {:>7} {:>7} {:>7} | {:>7.2} {:>7.2} {:>7.2} {:>8.2} {:>7.2} | {:>7} {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>7.2}x {:>7.2}x {:>7.2}x",
-            name,
-            tris.len(),
-            100.0 * hit_frac,
-            pct(eh),
-            pct(th),
-            pct(tsh),
-            m2,
-            m4,
-            m8,
-            m8x2,
-            mcw,
-            num(em),
-            num(es),
-            num(tm),
-            num(ts),
-            ratio(m2, em),
-            ratio(m4, em),
-            ratio(m2, es),
-            ratio(m4, es),
-            r8e.map_or("-".to_string(), |r| format!("{r:.2}x")),
-            ratio(m8, tm),
-            r8s.map_or("-".to_string(), |r| format!("{r:.2}x")),
-            two_on_one,
-            alu_two_on_one,
-            mcw / m8
-        );
-        let c = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
-        println!("{:<16} {:>41} | {:>7} {:>7} {:>7} {:>8} {:>7}   (by the worker's CPU time)", "", "", c(c2), c(c4), c(c8), "", c(ccw));
-        if r8s.is_some() {
-            eprintln!("{name}: bvh8 vs tinybvh on the same rays, paired per round: faster in {r8s_faster} of {} rounds", tiny_pairs.len());
-        }
-        eprintln!(
-            "{name}: bvh8 2 threads over 1: paired by round {two_on_one:.2}x, ratio of the medians {:.2}x; the register-only control ({malu:.2} / {malu2:.2} Mrays/s on 1 / 2 threads) {alu_two_on_one:.2}x, bvh8 at or above it in {beat_alu} of {} rounds",
-            m8x2 / m8,
-            secs[2].len()
-        );
-        if r8e.is_some() {
-            eprintln!("{name}: bvh8 vs Embree on the same rays, paired per round: faster in {r8e_faster} of {} rounds", embree_pairs.len());
+        if raw_index.is_some() {
+            println!("RAW {}", serde_json::to_string(&raw).expect("measurements as JSON"));
+        } else {
+            summarize(&raw);
         }
     }
-    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays (its scene committed once, generation untimed; median of one pass per round, each paired with a pass of bvh8 as Ts: bvh8/Es); T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); every side on transparent huge pages unless BVHLAB_THP=0 (bvhlab's timed layouts and Embree advise their memory, the tinybvh programs get glibc.malloc.hugetlb=1); 2T/1T = median over the rounds of bvh8's 1-thread over its 2-thread seconds in the same round; alu2T/1T = the same for a control pass right after it, shaped like a trace but register-only work per ray (64 dependent xorshift-multiply steps): how the machine scales work that never waits on memory; loadavg at end: {}", load.trim());
+    if raw_index.is_none() {
+        print_legend();
+    }
 }
