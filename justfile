@@ -59,7 +59,8 @@ kilian:
 
 # Trace throughput, 1 thread, 10^6 random rays of the anchors' kind: bvhlab bvh2, bvh4, bvh8 (and bvh8 on
 # 2 threads) beside Embree rtcIntersect1 and tinybvh BVH8_CPU run in the same invocation, once per round after
-# bvhlab's runs, so both sides are medians of RUNS interleaved runs; ratios of medians (issue 19). Where tiny_bvh.h and
+# bvhlab's runs, so both sides are medians of the same interleaved rounds (RUNS in each of PROCS processes, pooled);
+# ratios of medians (issue 19). Where tiny_bvh.h and
 # g++ are found, tinybvh's BVH8_CPU also traces bvhlab's own rays in a warm pass next to a warm extra pass of bvh8 at the end of every round (T-same,
 # bvh8/Ts: the median of the paired ratios). Every side on transparent huge pages (bvhlab's timed layouts and Embree
 # advise their memory; tinybvh runs with glibc.malloc.hugetlb=1); BVHLAB_THP=0: none of them.
@@ -80,8 +81,9 @@ bench-trace RUNS="2" *SCENES="":
     # BINS=N: N bins (default 8, or 16 with AXES=largest); AXES=largest BINS=32 is the build that passes issue 19's build target.
     # tinybvh's BVH8_CPU served over bvhlab's own rays (scripts/anchors/build.sh), paired with bvh8 per round: bvh8/Ts.
     repo=$PWD; source scripts/anchors/build.sh
-    # RUNS rounds in each of PROCS processes (default 3), pooled: one process's medians on the dragon moved by 10-15 %
-    # from process to process (docs/decisions.md), while the anchors run a process per round.
+    # RUNS rounds in each of PROCS processes (default 3; PROCS=1: one process, as before), pooled: one process's bvh8
+    # median on the dragon ranged 2.79-3.62 Mrays/s over six processes (docs/decisions.md), while the anchors run a
+    # process per round.
     cargo run --quiet --release -p bvhlab-layout --example bench_trace -- --runs {{RUNS}} --procs "${PROCS:-3}" --tools ../shared/tools --axes "${AXES:-all}" ${BINS:+--bins "$BINS"} ${serve_trace:+--tinybvh-serve "$serve_trace"} $scenes
 
 # issue 19.4: binned SAH (thesis and all-axes configurations) against tinybvh's BuildAVX, alternated: 1 thread against

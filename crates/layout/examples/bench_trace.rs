@@ -28,7 +28,7 @@
 //! stderr line says how many MiB bvhlab and the served tinybvh got).
 //! `--procs P`: the whole measurement in P processes one after the other (each `--runs` rounds),
 //! their rounds pooled per scene before the medians (`just bench-trace` runs 3): one process's
-//! figures on the dragon moved by 10-15 % from process to process ([`Raw`]).
+//! bvh8 median on the dragon ranged 2.79-3.62 Mrays/s over six processes ([`Raw`]).
 //! Before timing, the fast hits of 10^4 rays are checked against the exact traversal
 //! (`bvhlab_trace::check_agreement`).
 use bvhlab_builders::{binned_sah, TopDownConfig};
@@ -40,17 +40,19 @@ use rayon::prelude::*;
 use std::process::Command;
 
 /// The machine's control for `2T/1T`: a pass shaped like a trace (the same rays in the same rayon
-/// chunks, the same `vec![Hit::NONE; n]` before them, a `Hit` written per ray) whose work per ray
-/// is a chain of 64 dependent xorshift-multiply steps in registers (splitmix64's mixing step; an
-/// affine step such as `x * a + b` would not do: LLVM folds 64 of them into one multiply-add), about
-/// 5 cycles each, so a pass lasts about as long as bvh8's. Read `2T/1T` against it: the traversal
-/// cannot be blamed for scaling the way register-only work does on the same machine.
-fn alu_pass(rays: &[Ray]) -> Vec<Hit> {
+/// chunks, the same serial `vec![Hit::NONE; n]` before them, a `Hit` written per ray) whose work
+/// per ray is a chain of `steps` dependent xorshift-multiply steps in registers (splitmix64's
+/// mixing step; an affine step such as `x * a + b` would not do: LLVM folds a chain of them into
+/// one multiply-add). `steps` is calibrated per scene so that the control's 1-thread pass lasts as
+/// long as bvh8's ([`calibrate_steps`]): the serial part of the two passes then weighs alike. Read
+/// `2T/1T` against it: the traversal cannot be blamed for scaling the way register-only work does
+/// on the same machine.
+fn alu_pass(rays: &[Ray], steps: u32) -> Vec<Hit> {
     let mut hits = vec![Hit::NONE; rays.len()];
     hits.par_chunks_mut(1024).zip(rays.par_chunks(1024)).for_each(|(h, r)| {
         for (h, r) in h.iter_mut().zip(r) {
             let mut x = u64::from(r.origin.x.to_bits()) | 1;
-            for _ in 0..64 {
+            for _ in 0..steps {
                 x ^= x >> 29;
                 x = x.wrapping_mul(0xbf58_476d_1ce4_e5b9);
             }
@@ -58,6 +60,20 @@ fn alu_pass(rays: &[Ray]) -> Vec<Hit> {
         }
     });
     hits
+}
+
+/// Steps per ray for [`alu_pass`] such that its 1-thread pass takes as long as `reference`'s (one
+/// timed pass of each after a warm-up, 1 thread; at least 8).
+fn calibrate_steps(rays: &[Ray], reference: impl Fn() -> Vec<Hit> + Sync) -> u32 {
+    let one = pool(1);
+    let time = |f: &(dyn Fn() -> Vec<Hit> + Sync)| {
+        one.install(|| std::hint::black_box(f()));
+        let s = std::time::Instant::now();
+        one.install(|| std::hint::black_box(f()));
+        s.elapsed().as_secs_f64()
+    };
+    let (t_ref, t64) = (time(&reference), time(&|| alu_pass(rays, 64)));
+    ((64.0 * t_ref / t64).round() as u32).max(8)
 }
 
 fn pool(n: usize) -> rayon::ThreadPool {
@@ -93,6 +109,7 @@ type PairedRuns = Vec<(f64, f64)>;
 
 fn mrays(
     runs: usize,
+    round0: usize,
     jobs: &[Job],
     mut partners: Vec<Paired>,
     mut after_round: impl FnMut(),
@@ -123,7 +140,9 @@ fn mrays(
                 s.elapsed().as_secs_f64()
             };
             let mut theirs = || (p.pass)().and_then(|_| (p.pass)());
-            let pair = if round % 2 == 0 {
+            // `round0`: this process's first round among all processes' (`--procs`), so the order
+            // alternates over the pooled rounds too.
+            let pair = if (round0 + round) % 2 == 0 {
                 let a = ours();
                 theirs().map(|b| (b, a))
             } else {
@@ -144,12 +163,14 @@ const THREADS: [usize; 7] = [1, 1, 1, 2, 1, 2, 1];
 
 /// One process's measurements of one scene, everything the table is computed from; with
 /// `--procs P` every process prints its own (`--raw`) and the parent pools them ([`Raw::merge`]):
-/// on the dragon one process's medians moved by 10-15 % from process to process (bvh8 2.79-3.62
+/// on the dragon one process's medians moved from process to process (bvh8 2.79-3.62
 /// Mrays/s over six processes, Embree's in those processes 3.13-3.98, their paired ratio 0.70-1.01,
 /// 2026-11-29) with the timed buffers on huge pages alike in each (smaps), while the anchors run a
 /// process per round anyway.
 #[derive(serde::Serialize, serde::Deserialize)]
 struct Raw {
+    /// The scene as given (pooled on this, not on the name: two paths may share a file name).
+    spec: String,
     name: String,
     tris: usize,
     rays: usize,
@@ -168,12 +189,23 @@ struct Raw {
     /// MiB on huge pages, one per process: bvhlab's timed layouts, the served tinybvh.
     huge_ours: Vec<f64>,
     huge_tiny: Vec<f64>,
+    /// The control's steps per ray, one per process.
+    steps: Vec<u32>,
+    /// Per process: its median bvh8 Mrays/s and its medians of bvh8/Es and bvh8/Ts ([`Raw::own`]).
+    per_proc: Vec<(f64, Option<f64>, Option<f64>)>,
     procs: usize,
 }
 
 impl Raw {
     /// Pools another process's rounds of the same scene (the same rays: hit fractions kept).
+    /// This process's own figures, for the spread between processes (`per_proc`).
+    fn own(&self) -> (f64, Option<f64>, Option<f64>) {
+        let ratio = |p: &PairedRuns| (!p.is_empty()).then(|| median(&p.iter().map(|(th, ours)| th / ours).collect::<Vec<_>>()));
+        (self.rays as f64 / median(&self.secs[2]) / 1e6, ratio(&self.embree_pairs), ratio(&self.tiny_pairs))
+    }
+
     fn merge(&mut self, o: Raw) {
+        assert!(self.tris == o.tris && self.rays == o.rays, "{}: processes measured different inputs", self.spec);
         for (a, b) in self.secs.iter_mut().zip(o.secs) {
             a.extend(b);
         }
@@ -188,6 +220,8 @@ impl Raw {
         self.embree_hit = self.embree_hit.or(o.embree_hit);
         self.huge_ours.extend(o.huge_ours);
         self.huge_tiny.extend(o.huge_tiny);
+        self.steps.extend(o.steps);
+        self.per_proc.extend(o.per_proc);
         self.procs += o.procs;
     }
 }
@@ -387,15 +421,18 @@ fn summarize(r: &Raw) {
         eprintln!("{name}: bvh8 vs tinybvh on the same rays, paired per round: faster in {r8s_faster} of {} rounds", tiny_pairs.len());
     }
     eprintln!(
-        "{name}: bvh8 2 threads over 1: paired by round {two_on_one:.2}x, ratio of the medians {:.2}x; the register-only control ({malu:.2} / {malu2:.2} Mrays/s on 1 / 2 threads) {alu_two_on_one:.2}x, bvh8 at or above it in {beat_alu} of {} rounds",
+        "{name}: bvh8 2 threads over 1: paired by round {two_on_one:.2}x, ratio of the medians {:.2}x; the register-only control ({} steps per ray; {malu:.2} / {malu2:.2} Mrays/s on 1 / 2 threads) {alu_two_on_one:.2}x, bvh8 at or above it in {beat_alu} of {} rounds",
         m8x2 / m8,
+        r.steps.iter().map(|s| s.to_string()).collect::<Vec<_>>().join("/"),
         secs[2].len()
     );
     if r8e.is_some() {
         eprintln!("{name}: bvh8 vs Embree on the same rays, paired per round: faster in {r8e_faster} of {} rounds", embree_pairs.len());
     }
     if r.procs > 1 {
-        eprintln!("{name}: pooled over {} processes, {} rounds", r.procs, secs[2].len());
+        let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
+        let each: Vec<String> = r.per_proc.iter().map(|(m, e, t)| format!("{m:.2} Mrays/s, bvh8/Es {}, bvh8/Ts {}", f(*e), f(*t))).collect();
+        eprintln!("{name}: pooled over {} processes, {} rounds; bvh8 per process: {}", r.procs, secs[2].len(), each.join("; "));
     }
 }
 
@@ -480,6 +517,7 @@ fn main() {
             }
         }
         let mut pooled: Vec<Raw> = Vec::new();
+        let mut failed = false;
         for i in 0..procs {
             let out = Command::new(&exe)
                 .args(&child_args)
@@ -488,13 +526,22 @@ fn main() {
                 .output()
                 .expect("bench_trace child");
             if !out.status.success() {
-                eprintln!("bench_trace: process {i} failed: {}", out.status);
-                std::process::exit(1);
+                // Its rounds are lost; the others' are still pooled, and the exit status says so.
+                eprintln!("bench_trace: process {i} failed ({}); pooling the others", out.status);
+                failed = true;
+                continue;
             }
             for line in String::from_utf8_lossy(&out.stdout).lines() {
                 let Some(json) = line.strip_prefix("RAW ") else { continue };
-                let r: Raw = serde_json::from_str(json).expect("a child's measurements");
-                match pooled.iter_mut().find(|p| p.name == r.name) {
+                let r: Raw = match serde_json::from_str(json) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        eprintln!("bench_trace: process {i}: unreadable measurements: {e}");
+                        failed = true;
+                        continue;
+                    }
+                };
+                match pooled.iter_mut().find(|p| p.spec == r.spec) {
                     Some(p) => p.merge(r),
                     None => pooled.push(r),
                 }
@@ -502,6 +549,9 @@ fn main() {
         }
         pooled.iter().for_each(summarize);
         print_legend();
+        if failed {
+            std::process::exit(1);
+        }
         return;
     }
     for spec in &scenes {
@@ -570,14 +620,16 @@ fn main() {
             );
         }
         let hit_frac = f2.hits(&rays).iter().filter(|h| h.is_hit()).count() as f64 / rays.len() as f64;
+        // The control's work per ray, so that its 1-thread pass lasts as long as bvh8's.
+        let steps = calibrate_steps(&rays, || w8.hits(&s8, &rays));
         let jobs: Vec<Job> = vec![
             (1, Box::new(|| f2.hits(&rays))),
             (1, Box::new(|| w4.hits(&s4, &rays))),
             (1, Box::new(|| w8.hits(&s8, &rays))),
             (2, Box::new(|| w8.hits(&s8, &rays))),
             // The register-only control's 2-thread scaling, right after bvh8's (same phase of the machine).
-            (1, Box::new(|| alu_pass(&rays))),
-            (2, Box::new(|| alu_pass(&rays))),
+            (1, Box::new(|| alu_pass(&rays, steps))),
+            (2, Box::new(|| alu_pass(&rays, steps))),
             (1, Box::new(|| cw.hits(&s8, &rays))),
         ];
         // The anchors once per round (`embree-anchor SCENE 1 1`, `tinybvh-anchor SCENE 1`: each
@@ -615,13 +667,14 @@ fn main() {
             });
             partners.len() - 1
         });
-        let (secs, cpu, paired) = mrays(runs, &jobs, partners, || {
+        let (secs, cpu, paired) = mrays(runs, raw_index.unwrap_or(0) * runs, &jobs, partners, || {
             e_runs.extend(anchor(&format!("{tools}/embree-anchor"), &[spec, "1", "1"]));
             t_runs.extend(anchor(&format!("{tools}/tinybvh-anchor"), &[spec, "1"]));
         });
         let pairs_of = |at: Option<usize>| at.map_or_else(Vec::new, |i| paired[i].clone());
         let (tiny_pairs, embree_pairs) = (pairs_of(tiny_at), pairs_of(embree_at));
         let raw = Raw {
+            spec: spec.clone(),
             name: name.clone(),
             tris: tris.len(),
             rays: rays.len(),
@@ -636,8 +689,11 @@ fn main() {
             t_runs,
             huge_ours: huge_ours.into_iter().collect(),
             huge_tiny: tiny.as_ref().and_then(|t| t.huge_mib()).into_iter().collect(),
+            steps: vec![steps],
+            per_proc: Vec::new(),
             procs: 1,
         };
+        let raw = Raw { per_proc: vec![raw.own()], ..raw };
         if raw_index.is_some() {
             println!("RAW {}", serde_json::to_string(&raw).expect("measurements as JSON"));
         } else {
