@@ -196,14 +196,24 @@ struct Raw {
     procs: usize,
 }
 
+/// bvh8's paired ratio against a partner: the median over the rounds of the partner's seconds over
+/// bvh8's (None without rounds).
+fn paired_ratio(p: &PairedRuns) -> Option<f64> {
+    (!p.is_empty()).then(|| median(&p.iter().map(|(th, ours)| th / ours).collect::<Vec<_>>()))
+}
+
+/// A figure with two decimals, or "-".
+fn num(v: Option<f64>) -> String {
+    v.map_or("-".to_string(), |v| format!("{v:.2}"))
+}
+
 impl Raw {
-    /// Pools another process's rounds of the same scene (the same rays: hit fractions kept).
     /// This process's own figures, for the spread between processes (`per_proc`).
     fn own(&self) -> (f64, Option<f64>, Option<f64>) {
-        let ratio = |p: &PairedRuns| (!p.is_empty()).then(|| median(&p.iter().map(|(th, ours)| th / ours).collect::<Vec<_>>()));
-        (self.rays as f64 / median(&self.secs[2]) / 1e6, ratio(&self.embree_pairs), ratio(&self.tiny_pairs))
+        (self.rays as f64 / median(&self.secs[2]) / 1e6, paired_ratio(&self.embree_pairs), paired_ratio(&self.tiny_pairs))
     }
 
+    /// Pools another process's rounds of the same scene (the same rays: hit fractions kept).
     fn merge(&mut self, o: Raw) {
         assert!(self.tris == o.tris && self.rays == o.rays, "{}: processes measured different inputs", self.spec);
         for (a, b) in self.secs.iter_mut().zip(o.secs) {
@@ -353,8 +363,7 @@ fn summarize(r: &Raw) {
     // rounds of the partner's seconds over bvh8's) and in how many rounds bvh8 was faster.
     let paired_stats = |p: &PairedRuns| {
         let mr = (!p.is_empty()).then(|| rays as f64 / median(&p.iter().map(|p| p.0).collect::<Vec<_>>()) / 1e6);
-        let r = (!p.is_empty()).then(|| median(&p.iter().map(|(th, ours)| th / ours).collect::<Vec<_>>()));
-        (mr, r, p.iter().filter(|(th, ours)| ours < th).count())
+        (mr, paired_ratio(p), p.iter().filter(|(th, ours)| ours < th).count())
     };
     let (es, r8e, r8e_faster) = paired_stats(embree_pairs);
     // Median of a field over the anchor's runs (None when no run gave it).
@@ -385,7 +394,6 @@ fn summarize(r: &Raw) {
         if bvhlab_trace::thp::enabled() { "on" } else { "0" }
     );
     let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.2}", 100.0 * v));
-    let num = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
     let ratio = |a: f64, b: Option<f64>| b.map_or("-".to_string(), |b| format!("{:.2}x", a / b));
     println!(
         "{:<16} {:>8} {:>7.2} {:>7} {:>7} {:>7} | {:>7.2} {:>7.2} {:>7.2} {:>8.2} {:>7.2} | {:>7} {:>7} {:>7} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>7.2}x {:>7.2}x {:>7.2}x",
@@ -415,8 +423,7 @@ fn summarize(r: &Raw) {
         alu_two_on_one,
         mcw / m8
     );
-    let c = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
-    println!("{:<16} {:>41} | {:>7} {:>7} {:>7} {:>8} {:>7}   (by the worker's CPU time)", "", "", c(c2), c(c4), c(c8), "", c(ccw));
+    println!("{:<16} {:>41} | {:>7} {:>7} {:>7} {:>8} {:>7}   (by the worker's CPU time)", "", "", num(c2), num(c4), num(c8), "", num(ccw));
     if r8s.is_some() {
         eprintln!("{name}: bvh8 vs tinybvh on the same rays, paired per round: faster in {r8s_faster} of {} rounds", tiny_pairs.len());
     }
@@ -430,8 +437,7 @@ fn summarize(r: &Raw) {
         eprintln!("{name}: bvh8 vs Embree on the same rays, paired per round: faster in {r8e_faster} of {} rounds", embree_pairs.len());
     }
     if r.procs > 1 {
-        let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
-        let each: Vec<String> = r.per_proc.iter().map(|(m, e, t)| format!("{m:.2} Mrays/s, bvh8/Es {}, bvh8/Ts {}", f(*e), f(*t))).collect();
+        let each: Vec<String> = r.per_proc.iter().map(|(m, e, t)| format!("{m:.2} Mrays/s, bvh8/Es {}, bvh8/Ts {}", num(*e), num(*t))).collect();
         eprintln!("{name}: pooled over {} processes, {} rounds; bvh8 per process: {}", r.procs, secs[2].len(), each.join("; "));
     }
 }
@@ -439,7 +445,7 @@ fn summarize(r: &Raw) {
 /// The table's legend, after the last scene.
 fn print_legend() {
     let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
-    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays (its scene committed once, generation untimed; median of one pass per round, each paired with a pass of bvh8 as Ts: bvh8/Es); T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); every side on transparent huge pages unless BVHLAB_THP=0 (bvhlab's timed layouts and Embree advise their memory, the tinybvh programs get glibc.malloc.hugetlb=1); 2T/1T = median over the rounds of bvh8's 1-thread over its 2-thread seconds in the same round (with --procs P: over every process's rounds); alu2T/1T = the same for a control pass right after it, shaped like a trace but register-only work per ray (64 dependent xorshift-multiply steps): how the machine scales work that never waits on memory; loadavg at end: {}", load.trim());
+    println!("# targets: bvh2/E >= 0.8x, bvh4/E >= 1.0x, bvh8/T >= 1.0x, 2T/1T >= 1.8x; E = embree-anchor (its timing includes its ray generation), Es = Embree's rtcIntersect1 on the same rays (its scene committed once, generation untimed; median of one pass per round, each paired with a pass of bvh8 as Ts: bvh8/Es); T = tinybvh-anchor (its own rays, one pass per invocation), Ts = tinybvh's BVH8_CPU on the same rays (--tinybvh-serve), bvh8/Ts = median over the rounds of the paired ratio (an extra warm pass of bvh8 next to a warm pass of tinybvh, the order alternating); every side on transparent huge pages unless BVHLAB_THP=0 (bvhlab's timed layouts and Embree advise their memory, the tinybvh programs get glibc.malloc.hugetlb=1); 2T/1T = median over the rounds of bvh8's 1-thread over its 2-thread seconds in the same round (with --procs P: over every process's rounds); alu2T/1T = the same for a control pass right after it, shaped like a trace but register-only work per ray (dependent xorshift-multiply steps, as many as make its 1-thread pass as long as bvh8's): how the machine scales work that never waits on memory; loadavg at end: {}", load.trim());
 }
 
 fn main() {
