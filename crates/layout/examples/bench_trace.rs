@@ -142,7 +142,7 @@ fn mrays(
             let mut theirs = || (p.pass)().and_then(|_| (p.pass)());
             // `round0`: this process's first round among all processes' (`--procs`), so the order
             // alternates over the pooled rounds too.
-            let pair = if (round0 + round) % 2 == 0 {
+            let pair = if (round0 + round).is_multiple_of(2) {
                 let a = ours();
                 theirs().map(|b| (b, a))
             } else {
